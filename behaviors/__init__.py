@@ -1,0 +1,2 @@
+"""Built-in behaviors."""
+BUILTIN_BEHAVIORS = []

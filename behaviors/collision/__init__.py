@@ -1,0 +1,1 @@
+"""Collision pipeline: broad phase, narrow phase, response."""

@@ -1,0 +1,2 @@
+"""Built-in components."""
+BUILTIN_COMPONENTS = []

@@ -1,0 +1,1 @@
+"""Shipped graphs and example scenes (package data)."""
