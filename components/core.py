@@ -1,0 +1,120 @@
+"""Core components: what makes an element dynamic or kinematic, pins, simple springs."""
+
+from __future__ import annotations
+
+from typing import ClassVar
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from lokigraph.component import Component, Paintable, resolve_paintable
+from lokigraph.geometry import vertex_measure
+
+Vec3 = tuple[float, float, float]
+
+
+class Dynamic(Component):
+    """The element is simulated: its vertices have mass and integrate in time.
+
+    Mass is lumped from ``mass_density`` over the element's highest-dimensional simplices:
+    kg/m^3 for tetrahedra, kg/m^2 for triangles, kg/m for curves; ``point_mass`` [kg] sets the
+    mass of every vertex directly instead (required for elements made of points only).
+    """
+
+    particle_role: ClassVar[str] = "dynamic"
+    needs_geometry: ClassVar[bool] = True
+
+    mass_density: Paintable = Field(0.1, description="Mass density: kg/m^3 (volumes), kg/m^2 "
+                                                     "(cloth), kg/m (hair). Paintable.")
+    point_mass: float | None = Field(None, gt=0, description="Mass of each vertex [kg]; "
+                                                              "overrides mass_density.")
+    velocity: Vec3 = Field((0.0, 0.0, 0.0), description="Initial velocity [m/s].")
+    damping: float = Field(0.0, ge=0, description="Velocity damping rate [1/s] (Nucleus "
+                                                  "'damp'): v *= exp(-damping h) per substep.")
+
+    @field_validator("mass_density")
+    @classmethod
+    def _positive(cls, v):
+        if isinstance(v, (int, float)) and v <= 0:
+            raise ValueError(f"must be > 0 (got {v})")
+        return v
+
+    def vertex_mass(self, element) -> np.ndarray:
+        """Lumped vertex masses [kg], shape (vertex_count,)."""
+        if self.point_mass is not None:
+            return np.full(element.vertex_count, float(self.point_mass))
+        rho = resolve_paintable(self.mass_density, element, "Dynamic.mass_density")
+        return rho * vertex_measure(element.geometry)
+
+    def initial_velocity(self, element) -> np.ndarray:
+        return np.tile(np.asarray(self.velocity, dtype=np.float64), (element.vertex_count, 1))
+
+
+class Key(BaseModel):
+    """A rigid keyframe of a kinematic element (linear interpolation between keys)."""
+
+    model_config = ConfigDict(extra="forbid")
+    frame: float = Field(description="Frame number of the key.")
+    translate: Vec3 = Field((0.0, 0.0, 0.0), description="Translation [m].")
+    rotate: Vec3 = Field((0.0, 0.0, 0.0), description="Rotation about x, y, z [degrees], about "
+                                                       "the pivot.")
+    pivot: Vec3 = Field((0.0, 0.0, 0.0), description="Rotation pivot [m] (rest space).")
+
+
+class Kinematic(Component):
+    """The element follows animation: rigid ``keys``, or the mesh ``sequence`` of its geometry.
+
+    Without either it stays at its rest pose (a static collider).
+    """
+
+    particle_role: ClassVar[str] = "kinematic"
+    needs_geometry: ClassVar[bool] = True
+
+    keys: list[Key] = Field(default_factory=list, description="Rigid keyframes, sorted by frame.")
+
+    @field_validator("keys")
+    @classmethod
+    def _sorted(cls, v):
+        frames = [k.frame for k in v]
+        if frames != sorted(frames):
+            raise ValueError("keys must be sorted by frame")
+        return v
+
+
+class Pins(Component):
+    """Hard pins: pinned vertices keep their initial position exactly.
+
+    Give ``vertices`` (0-based indices) and/or a painted ``map`` (pinned where map > threshold).
+    """
+
+    needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
+    vertices: list[int] = Field(default_factory=list, description="Pinned vertex indices.")
+    map: Paintable | None = Field(None, description="Painted pin weights; pinned where > "
+                                                    "threshold.")
+    threshold: float = Field(0.5, description="Map value above which a vertex is pinned.")
+
+    def pinned(self, element) -> np.ndarray:
+        mask = np.zeros(element.vertex_count, dtype=bool)
+        idx = np.asarray(self.vertices, dtype=np.int64)
+        if idx.size:
+            if idx.min() < 0 or idx.max() >= element.vertex_count:
+                from lokigraph.errors import Diagnostic, InputError
+
+                raise InputError(Diagnostic(file=element.source_file, line=element.line,
+                                            element=element.name, field="Pins.vertices",
+                                            message=f"vertex index out of range [0, "
+                                                    f"{element.vertex_count})"))
+            mask[idx] = True
+        if self.map is not None:
+            mask |= resolve_paintable(self.map, element, "Pins.map") > self.threshold
+        return mask
+
+
+class RestSpring(Component):
+    """A linear spring pulling every vertex to its rest position: f = -k (x - x_rest).
+
+    The simplest force there is; used for the spring of Nucleus section 4.2.
+    """
+
+    needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
+    stiffness: Paintable = Field(1.0, description="Spring stiffness per vertex [N/m]. Paintable.")

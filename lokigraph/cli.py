@@ -1,0 +1,140 @@
+"""The ``lokigraph`` command line.
+
+Exit codes: 0 success, 2 invalid input (YAML, components, graph), 3 simulation failure,
+1 anything unexpected (a bug: the traceback is printed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import traceback
+
+from .errors import EXIT_INPUT, EXIT_OK, EXIT_UNEXPECTED, InputError, LokigraphError
+
+
+def _frames(text: str) -> tuple[int, int]:
+    try:
+        a, b = text.split(":")
+        return int(a), int(b)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected A:B (two frame numbers), got {text!r}") \
+            from None
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="lokigraph", description="Cloth, hair and coupled "
+                                "simulation driven by a behavior graph.")
+    p.add_argument("--version", action="version", version=f"lokigraph {_version()}")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    r = sub.add_parser("run", help="run a scene and write frames")
+    r.add_argument("scene")
+    r.add_argument("--frames", type=_frames, help="write frames A:B (simulates from the start)")
+    r.add_argument("--out", help="output folder (default: the scene's output.dir)")
+    r.add_argument("--format", choices=["obj", "ply", "vtu"], help="mesh format of frames")
+    r.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    v = sub.add_parser("validate", help="check a scene (everything compile checks), no run")
+    v.add_argument("scene")
+
+    pl = sub.add_parser("plan", help="print the compiled schedule and what was pruned, and why")
+    pl.add_argument("scene")
+    pl.add_argument("--json", action="store_true")
+
+    sub.add_parser("behaviors", help="list registered behaviors and components")
+
+    sc = sub.add_parser("schema", help="JSON schema of components and behavior parameters")
+    sc.add_argument("--out", help="write to this file instead of stdout")
+    return p
+
+
+def _version() -> str:
+    from . import __version__
+
+    return __version__
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        return _dispatch(args)
+    except LokigraphError as exc:
+        print(f"error: {exc}" if not isinstance(exc, InputError) else str(exc), file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("interrupted; frames written so far are kept", file=sys.stderr)
+        return 130
+    except Exception:  # noqa: BLE001 - a bug: show everything
+        traceback.print_exc()
+        print("lokigraph: unexpected internal error (exit 1); please report it with the "
+              "traceback above", file=sys.stderr)
+        return EXIT_UNEXPECTED
+
+
+def _dispatch(args) -> int:
+    if args.command == "behaviors":
+        return _cmd_behaviors()
+    if args.command == "schema":
+        from .schema import export_schema
+
+        text = json.dumps(export_schema(), indent=1)
+        if args.out:
+            from pathlib import Path
+
+            from .run import atomic_write
+
+            atomic_write(Path(args.out), lambda p: p.write_text(text))
+        else:
+            print(text)
+        return EXIT_OK
+    from .api import compile_file
+
+    compiled = compile_file(args.scene)
+    if args.command == "validate":
+        n = len(compiled.scene.elements)
+        print(f"{args.scene}: ok ({n} elements, {compiled.model.particle_count} vertices, "
+              f"{len(compiled.schedule.all())} behaviors scheduled, "
+              f"{len(compiled.schedule.pruned)} pruned)")
+        return EXIT_OK
+    if args.command == "plan":
+        if args.json:
+            print(json.dumps(compiled.schedule.as_dict(), indent=1))
+        else:
+            print(compiled.schedule.format())
+        return EXIT_OK
+    if args.command == "run":
+        from .run import run
+
+        res = run(compiled, frames=args.frames, out_dir=args.out, fmt=args.format,
+                  progress=False if args.quiet else None)
+        tot = sum(res.frame_seconds)
+        print(f"wrote {len(res.frames_written)} frames to {res.out_dir} "
+              f"({tot:.2f} s wall time, {tot / max(len(res.frame_seconds), 1) * 1e3:.1f} ms/frame)")
+        return EXIT_OK
+    raise InputError(f"unknown command {args.command}")  # pragma: no cover
+
+
+def _cmd_behaviors() -> int:
+    from .behavior import ConstraintBehavior
+    from .registry import get_registry
+
+    reg = get_registry()
+    print("behaviors:")
+    for name in sorted(reg.behaviors):
+        cls = reg.behaviors[name]
+        req = " + ".join(t.type_id() for t in cls.requires) or ("always" if cls.always else "-")
+        extra = " constraint" if issubclass(cls, ConstraintBehavior) else ""
+        print(f"  {name:28s} stage={cls.stage:11s} requires={req:28s} "
+              f"from={reg.source.get(name, '?')}{extra}")
+    print("components:")
+    for name in sorted(reg.components):
+        print(f"  {name:28s} from={reg.source.get(name, '?')}")
+    for ep, (dist, exc) in sorted(reg.broken.items()):
+        print(f"broken plugin {ep} (distribution {dist}): {type(exc).__name__}: {exc}")
+    return EXIT_OK
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
