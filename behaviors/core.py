@@ -18,6 +18,11 @@ class _Indexed:
     values: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
 
+@dataclass
+class _Spring(_Indexed):
+    anchor: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
 class Gravity(Behavior):
     """Adds m g to every dynamic vertex (gravity vector from the scene, [m/s^2])."""
 
@@ -49,12 +54,14 @@ class RestSpringForce(Behavior):
                               for e in elements]).astype(np.int64)
         k = np.concatenate([resolve_paintable(e.get(RestSpring).stiffness, e,
                                               "RestSpring.stiffness") for e in elements])
-        return _Indexed(idx, k)
+        anchor = np.concatenate([
+            np.tile(e.get(RestSpring).anchor, (e.vertex_count, 1)) if e.get(RestSpring).anchor
+            is not None else ctx.model.particle_rest[e.vertex_slice] for e in elements])
+        return _Spring(idx, k, anchor)
 
     def step(self, ctx, data):
         x = ctx.state.particle_q[data.idx]
-        ctx.state.particle_f[data.idx] -= data.values[:, None] * (x - ctx.model.particle_rest[
-            data.idx])
+        ctx.state.particle_f[data.idx] -= data.values[:, None] * (x - data.anchor)
 
 
 @dataclass

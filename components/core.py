@@ -36,7 +36,7 @@ class Dynamic(Component):
     @classmethod
     def _positive(cls, v):
         if isinstance(v, (int, float)) and v <= 0:
-            raise ValueError(f"must be > 0 (got {v})")
+            raise ValueError(f"must be > 0 (got {v:g})")
         return v
 
     def vertex_mass(self, element) -> np.ndarray:
@@ -118,3 +118,5 @@ class RestSpring(Component):
 
     needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
     stiffness: Paintable = Field(1.0, description="Spring stiffness per vertex [N/m]. Paintable.")
+    anchor: Vec3 | None = Field(None, description="Fixed anchor point [m] for every vertex "
+                                                  "instead of its rest position.")

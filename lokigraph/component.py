@@ -121,7 +121,7 @@ _MESSAGES = {
 
 
 def pydantic_diagnostics(exc: ValidationError, locs, base_path: tuple, element: str,
-                         model_name: str, known_fields=None) -> list[Diagnostic]:
+                         model_name: str, known_fields=None, element_for=None) -> list[Diagnostic]:
     """Turn a pydantic ValidationError into located diagnostics.
 
     For a union (Paintable) pydantic reports one error per member; we keep the most telling one.
@@ -139,12 +139,20 @@ def pydantic_diagnostics(exc: ValidationError, locs, base_path: tuple, element: 
         seen.add(key)
         etype = err["type"]
         template = _MESSAGES.get(etype)
-        ctx = dict(err.get("ctx") or {})
+        ctx = {k: (f"{v:g}" if isinstance(v, float) else v)
+               for k, v in dict(err.get("ctx") or {}).items()}
         ctx["input"] = err.get("input")
         msg = template.format(**ctx) if template else err["msg"]
+        if etype == "value_error" and msg.startswith("Value error, "):
+            msg = msg[len("Value error, "):]
         if etype == "extra_forbidden" and known_fields and loc:
             near = difflib.get_close_matches(str(loc[-1]), list(known_fields), n=1)
             msg = f"unknown key {loc[-1]!r}" + (f"; did you mean {near[0]!r}?" if near else "")
         field = model_name + ("." + ".".join(str(p) for p in loc) if loc else "")
-        out.append(locs.diag(base_path + loc, msg, element=element, field=field))
+        el = element
+        if element_for is not None:
+            found = element_for(loc)
+            if found is not None:  # (element name, field path inside the element)
+                el, field = found
+        out.append(locs.diag(base_path + loc, msg, element=el, field=field))
     return out

@@ -386,7 +386,13 @@ def boundary_triangles(tets: np.ndarray) -> np.ndarray:
     return f[counts[inv.ravel()] == 1].astype(np.int64)
 
 
-GENERATORS = {"grid": grid, "strands": strands, "sphere": icosphere, "box": box, "tube": tube,
+def points(positions=((0.0, 0.0, 0.0),)) -> Geometry:
+    """Free points (particles) at the given positions [m]."""
+    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    return Geometry(p)
+
+
+GENERATORS = {"points": points, "grid": grid, "strands": strands, "sphere": icosphere, "box": box, "tube": tube,
               "tet_box": tet_box}
 
 

@@ -73,6 +73,7 @@ class Simulation:
         for b in self._steps:
             b.behavior.init_state(self.model, self.state, b.data)
         self._constraints = [(b.behavior, b.data) for b in self.schedule.constraints]
+        self._kinematic = np.flatnonzero(self.model.particle_kinematic)
         self.frame = compiled.scene.spec.frames.start
         self.substep_index = 0
 
@@ -89,6 +90,10 @@ class Simulation:
                           self._constraints, {})
         for b in self._steps:
             b.behavior.step(ctx, b.data)
+        kin = self._kinematic
+        if len(kin):  # animated vertices end the substep exactly on their animation
+            st.particle_q[kin] = ctl.kinematic_q[kin]
+            st.particle_qd[kin] = (ctl.kinematic_q[kin] - ctl.kinematic_q_prev[kin]) / h
         st.time += h
         self._guard(ctx)
         self.substep_index += 1

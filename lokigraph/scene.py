@@ -67,7 +67,7 @@ class GeometrySpec(Strict):
                                                "relative to the scene file.")
     sequence: str | None = Field(None, description="Per-frame mesh files for a kinematic element, "
                                                    "e.g. 'anim/body.{frame:04d}.obj'.")
-    generator: Literal["grid", "strands", "sphere", "box", "tube", "tet_box"] | None = None
+    generator: Literal["points", "grid", "strands", "sphere", "box", "tube", "tet_box"] | None = None
     params: dict = Field(default_factory=dict, description="Generator parameters (SI units).")
     units: Literal["m", "cm", "mm", "km", "in", "ft"] = Field("m", description="Units of the file.")
     transform: Transform | None = None
@@ -204,21 +204,15 @@ def scene_from_data(data, locs: Locations, path: Path) -> Scene:
         for i, e in enumerate(data.get("elements") or []):
             if isinstance(e, dict):
                 names[i] = str(e.get("name", f"#{i}"))
-        for d in pydantic_diagnostics(exc, locs, (), "", "scene",
-                                      known_fields=SceneSpec.model_fields):
-            diags.append(d)
-        # attach element names where the path starts with elements/i
-        out = []
-        for d, err in zip(diags, exc.errors()):
-            loc = err["loc"]
+
+        def element_for(loc):
             if len(loc) >= 2 and loc[0] == "elements" and isinstance(loc[1], int):
-                rest = [str(p) for p in loc[2:]
-                        if not (isinstance(p, str) and p in ("MapFile", "MapVertices"))]
-                d = Diagnostic(file=d.file, line=d.line, column=d.column,
-                               element=names.get(loc[1], ""), field=".".join(rest),
-                               message=d.message)
-            out.append(d)
-        raise InputError(out) from None
+                return names.get(loc[1], f"#{loc[1]}"), ".".join(str(p) for p in loc[2:])
+            return None
+
+        diags = pydantic_diagnostics(exc, locs, (), "", "scene",
+                                     known_fields=SceneSpec.model_fields, element_for=element_for)
+        raise InputError(diags) from None
 
     reg = get_registry()
     elements: list[Element] = []
