@@ -46,6 +46,8 @@ class Behavior:
 
     stage: ClassVar[str] = "forces"
     requires: ClassVar[tuple[type, ...]] = ()
+    #: an element must also carry at least one of these (if any are given)
+    requires_any: ClassVar[tuple[type, ...]] = ()
     optional: ClassVar[tuple[type, ...]] = ()
     #: elements carrying any of these are not bound
     excludes: ClassVar[tuple[type, ...]] = ()

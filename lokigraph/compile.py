@@ -258,9 +258,13 @@ def compile_scene(scene: Scene) -> Compiled:
             els = [e for e in scene.elements if e.geometry is not None]
         else:
             els = [e for e in scene.elements
-                   if e.has(*cls.requires) and not any(e.has(x) for x in cls.excludes)]
+                   if e.has(*cls.requires) and not any(e.has(x) for x in cls.excludes)
+                   and (not cls.requires_any or any(e.has(x) for x in cls.requires_any))]
         if not els and not cls.always:
-            req = " + ".join(t.type_id() for t in cls.requires) or "(nothing)"
+            req = " + ".join(t.type_id() for t in cls.requires) or ""
+            if cls.requires_any:
+                anyof = " or ".join(t.type_id() for t in cls.requires_any)
+                req = f"{req} + ({anyof})" if req else anyof
             pruned.append((beh.name, cls.type_id(), f"no element carries {req}"))
             continue
         kept.append(Bound(beh, node, els))
@@ -371,6 +375,14 @@ def compile_scene(scene: Scene) -> Compiled:
         model.data[b.behavior.name] = b.data
     if ctx.diagnostics:
         raise InputError(ctx.diagnostics)
+    # a constraint type whose elements yield no constraints (e.g. shear with no shear stiffness)
+    for s in STAGES:
+        for b in list(stages[s]):
+            if isinstance(b.behavior, ConstraintBehavior) and b.data is None:
+                stages[s].remove(b)
+                pruned.append((b.behavior.name, b.behavior.type_id(),
+                               "bound elements yield no constraints ("
+                               + ", ".join(e.name for e in b.elements) + ")"))
     constraints = sorted([b for b in stages["solve"] if isinstance(b.behavior, ConstraintBehavior)
                           and b.data is not None],
                          key=lambda b: (b.behavior.params.order, b.behavior.name))

@@ -12,7 +12,7 @@ from lokigraph.run import Simulation
 
 def test_example_pinned_cloth_free_fall(tmp_path):
     """Pinned corners stay exactly put; a free corner falls as symplectic Euler predicts."""
-    scene = EXAMPLES / "cloth_pinned.yaml"
+    scene = EXAMPLES / "pinned_particles.yaml"
     c = compile_file(scene)
     sim = Simulation(c)
     m = c.model
@@ -37,7 +37,7 @@ def test_example_pinned_cloth_free_fall(tmp_path):
 
 def test_run_writes_frames_and_runjson(tmp_path):
     out = tmp_path / "out"
-    r = run_cli("run", EXAMPLES / "cloth_pinned.yaml", "--out", out, "--frames", "3:6",
+    r = run_cli("run", EXAMPLES / "pinned_particles.yaml", "--out", out, "--frames", "3:6",
                 "--format", "ply", "--quiet")
     assert r.returncode == 0, r.stderr
     files = sorted(p.name for p in (out / "cloth").iterdir())
@@ -57,7 +57,7 @@ def test_run_writes_frames_and_runjson(tmp_path):
 
 @pytest.mark.parametrize("fmt", ["obj", "vtu"])
 def test_formats_roundtrip(tmp_path, fmt):
-    res = run_file(EXAMPLES / "cloth_pinned.yaml", out_dir=tmp_path, fmt=fmt, frames=(1, 2),
+    res = run_file(EXAMPLES / "pinned_particles.yaml", out_dir=tmp_path, fmt=fmt, frames=(1, 2),
                    progress=False)
     from lokigraph.geometry import read_mesh
 
@@ -113,8 +113,8 @@ def test_spring_phase_portraits(tmp_path):
 
 
 def test_determinism():
-    c1 = compile_file(EXAMPLES / "cloth_pinned.yaml")
-    c2 = compile_file(EXAMPLES / "cloth_pinned.yaml")
+    c1 = compile_file(EXAMPLES / "pinned_particles.yaml")
+    c2 = compile_file(EXAMPLES / "pinned_particles.yaml")
     s1, s2 = Simulation(c1), Simulation(c2)
     for _ in range(3):
         s1.step_frame()

@@ -1,0 +1,124 @@
+"""Material and constraint components: cloth, hair, volumes, goals, attachments, pressure."""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal
+
+from pydantic import Field, model_validator
+
+from lokigraph.component import Component, Paintable
+
+
+class DiscreteShell(Component):
+    """Cloth material on 2-simplices (Nucleus stretch, shear and bend constraints).
+
+    Stiffnesses are physical and mapped to per-constraint compliances that do not change
+    meaning with resolution or substeps: an edge of rest length L carrying area A_e gets a spring
+    stiffness E t A_e / L^2; a hinge gets D * 3 L^2 / (A_1 + A_2) (discrete shells).
+    """
+
+    needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
+    youngs_modulus: float | None = Field(None, gt=0, description="Young's modulus E [Pa]; null "
+                                         "= inextensible (hard stretch constraints).")
+    poisson_ratio: float = Field(0.3, ge=0.0, lt=0.5, description="Poisson ratio [-].")
+    thickness: float = Field(5e-4, gt=0, description="Material thickness t [m] (not the "
+                                                     "collision thickness).")
+    compression_ratio: float = Field(1.0, ge=0, description="Compression resistance relative to "
+                                     "stretch resistance [-] (0: buckles freely).")
+    shear_stiffness: float | None = Field(None, ge=0, description="Membrane shear stiffness "
+                                          "G t [N/m]; null = from E and nu (off if inextensible).")
+    bend_resistance: float = Field(1e-6, ge=0, description="Bending stiffness D [N m]; 0 = off.")
+    bend_angle_dropoff: float = Field(0.0, ge=0, description="Bend stiffness grows by "
+                                      "(1 + dropoff |angle - rest| / pi) [-] (Maya's dropoff).")
+    stretch_damping: float = Field(0.0, ge=0, description="Stretch damping (XPBD beta) [s].")
+    rest_channel: str | None = Field(None, description="Channel with rest positions (n, 3); "
+                                                       "default: the initial shape.")
+
+
+class Rod(Component):
+    """Hair material on 1-simplices: stretch and bend (curve type-2 angle constraints).
+
+    Stretch: axial spring E pi r^2 / L; bend at an interior vertex: EI / l_avg with
+    I = pi r^4 / 4 unless ``bend_resistance`` gives EI directly.
+    """
+
+    needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
+    youngs_modulus: float | None = Field(None, gt=0, description="Young's modulus [Pa]; null = "
+                                         "inextensible.")
+    radius: float = Field(4e-5, gt=0, description="Fibre radius [m].")
+    bend_resistance: float | None = Field(None, ge=0, description="Bending stiffness EI [N m^2]; "
+                                          "null = E pi r^4 / 4 (1e-9 if inextensible).")
+    compression_ratio: float = Field(1.0, ge=0, description="Compression/stretch resistance.")
+    rest_channel: str | None = Field(None, description="Channel with rest positions (n, 3).")
+
+
+class Volume(Component):
+    """Soft-body material on 3-simplices: tet edge stretch and tet volume preservation."""
+
+    needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
+    youngs_modulus: float = Field(1e5, gt=0, description="Young's modulus [Pa].")
+    poisson_ratio: float = Field(0.3, ge=0.0, lt=0.5, description="Poisson ratio [-].")
+    rest_channel: str | None = Field(None, description="Channel with rest positions (n, 3).")
+
+
+class Goal(Component):
+    """Goal attraction (Nucleus input-mesh attract) and soft pins.
+
+    Each vertex is pulled toward the same vertex of the ``target`` element (animated, same vertex
+    count) or, with no target, toward its own initial position (a soft pin).
+    """
+
+    needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
+    target: str | None = Field(None, description="Element whose vertices are the goals; null = "
+                                                 "own initial positions (soft pins).")
+    stiffness: Paintable = Field(1.0, description="Goal stiffness per vertex [N/m]; 0 = free. "
+                                                  "Paintable.")
+
+
+class Attachment(Component):
+    """Point-to-surface attachment (a data-less element): vertices of ``source`` are attached to
+    the closest triangles of ``target``, at fixed barycentric coordinates (``fixed``) or free to
+    slide along the surface (``sliding``)."""
+
+    source: str = Field(description="Element whose vertices are attached.")
+    target: str = Field(description="Element providing the surface (triangles).")
+    vertices: list[int] | None = Field(None, description="Source vertices (default: all).")
+    mode: Literal["fixed", "sliding"] = "fixed"
+    stiffness: float | None = Field(None, gt=0, description="Stiffness [N/m]; null = hard.")
+
+
+class Stitch(Component):
+    """Component-to-component stitches and welds (a data-less element).
+
+    ``pairs`` lists [vertex of a, vertex of b]; ``weld_distance`` adds every pair of vertices of a
+    and b closer than it [m]. Hard (weld) when stiffness is null.
+    """
+
+    a: str = Field(description="First element.")
+    b: str = Field(description="Second element.")
+    pairs: list[tuple[int, int]] = Field(default_factory=list)
+    weld_distance: float | None = Field(None, gt=0, description="Auto-pair distance [m].")
+    stiffness: float | None = Field(None, gt=0, description="Stiffness [N/m]; null = weld.")
+
+
+class Pressure(Component):
+    """Air pressure in a (closed or open) triangle mesh: hold a target volume, or apply a
+    pressure. Open meshes measure volume against the mean of their vertices."""
+
+    needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
+    mode: Literal["volume", "pressure"] = "volume"
+    volume_scale: float = Field(1.0, gt=0, description="Target volume / rest volume [-].")
+    compliance: float = Field(0.0, ge=0, description="Volume compliance [m^3/Pa] (0 = hard).")
+    pressure: float = Field(0.0, description="Gauge pressure [Pa] in 'pressure' mode.")
+
+
+class Rigid(Component):
+    """Rigid / shape-matching constraint on the whole element (Mueller et al. 2005)."""
+
+    needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
+    stiffness: float = Field(1.0, gt=0, le=1.0, description="Fraction of the way to the matched "
+                                                            "shape per projection [-].")
+
+    @model_validator(mode="after")
+    def _ok(self):
+        return self

@@ -1,0 +1,54 @@
+"""Install from a built wheel into a fresh virtual environment and run a shipped scene."""
+
+import json
+import os
+import subprocess
+import sys
+import venv
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_wheel_installs_and_runs(tmp_path):
+    dist = tmp_path / "dist"
+    r = subprocess.run([sys.executable, "-m", "build", "--wheel", "--no-isolation", "--outdir",
+                        str(dist), str(ROOT)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    wheel = next(dist.glob("lokigraph-*.whl"))
+    import zipfile
+
+    names = zipfile.ZipFile(wheel).namelist()
+    for must in ("lokigraph/cli.py", "lokigraph/behaviors/nucleus.py",
+                 "lokigraph/components/core.py", "lokigraph/graphs/default.yaml",
+                 "lokigraph/graphs/examples/pinned_particles.yaml"):
+        assert must in names, must
+    assert not any(n.startswith(("behaviors/", "components/", "graphs/")) for n in names)
+    env_dir = tmp_path / "venv"
+    # system site packages provide numpy & co. (no network); the wheel itself goes in the venv
+    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
+    py = env_dir / "bin" / "python"
+    r = subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "--quiet",
+                        "--no-deps", "--no-index", str(wheel)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH",)}
+    code = ("import lokigraph, lokigraph.graphs, pathlib, sys; "
+            "print(lokigraph.__file__); "
+            "print(pathlib.Path(lokigraph.graphs.__file__).parent / 'examples' / "
+            "'pinned_particles.yaml')")
+    r = subprocess.run([str(py), "-I", "-c", code], capture_output=True, text=True, env=env,
+                       cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    mod, scene = r.stdout.split()
+    assert str(env_dir) in mod, f"lokigraph imported from {mod}, not from the wheel"
+    lg = env_dir / "bin" / "lokigraph"
+    out = tmp_path / "out"
+    r = subprocess.run([str(lg), "run", scene, "--out", str(out), "--quiet"], capture_output=True,
+                       text=True, env=env, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    info = json.loads((out / "run.json").read_text())
+    assert info["status"] == "ok" and len(info["frames"]["written"]) > 1
+    r = subprocess.run([str(lg), "behaviors"], capture_output=True, text=True, env=env)
+    assert "NucleusSolver" in r.stdout
