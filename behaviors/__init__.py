@@ -3,12 +3,14 @@
 from .core import Gravity, HardPins, KinematicAnimation, RestSpringForce
 from .materials import (AttachmentConstraint, BendConstraint, GoalConstraint,
                         PressureConstraint, PressureForce, RigidConstraint, ShearConstraint,
-                        StitchConstraint, StretchConstraint, TetVolumeConstraint)
+                        StitchConstraint, StretchConstraint, TetherConstraint,
+                        TetVolumeConstraint)
 from .nucleus import NucleusSolver
+from .shapes import ShapeCollisionConstraint
 
 BUILTIN_BEHAVIORS = [Gravity, RestSpringForce, PressureForce, KinematicAnimation, HardPins,
-                     StretchConstraint, ShearConstraint, BendConstraint, TetVolumeConstraint,
+                     StretchConstraint, TetherConstraint, ShearConstraint, BendConstraint, TetVolumeConstraint,
                      GoalConstraint, AttachmentConstraint, StitchConstraint, PressureConstraint,
-                     RigidConstraint, NucleusSolver]
+                     RigidConstraint, ShapeCollisionConstraint, NucleusSolver]
 
 __all__ = ["BUILTIN_BEHAVIORS"] + [c.__name__ for c in BUILTIN_BEHAVIORS]

@@ -35,9 +35,13 @@ from lokigraph.kernels import implicit_drag_solve
 
 class NucleusParams(Params):
     iterations: int = Field(10, ge=1, le=10000, description="Constraint iterations per substep.")
+    interleave: bool = Field(True, description="Interleave constraint types across iterations "
+                             "(Nucleus Figure 11); false runs each type's passes back to back "
+                             "in order (Figure 9), for comparison.")
 
 
-def interleave_plan(types: list[tuple[str, float, int]], iterations: int) -> list[list[int]]:
+def interleave_plan(types: list[tuple[str, float, int]], iterations: int,
+                    interleave: bool = True) -> list[list[int]]:
     """Which constraint types run in each iteration.
 
     ``types``: (name, importance in (0, 1], order). Type k runs ceil(importance * iterations)
@@ -47,6 +51,8 @@ def interleave_plan(types: list[tuple[str, float, int]], iterations: int) -> lis
     n = int(iterations)
     ranked = sorted(range(len(types)), key=lambda i: (types[i][2], types[i][0]))
     counts = [max(1, min(n, math.ceil(types[i][1] * n - 1e-9))) for i in range(len(types))]
+    if not interleave:  # Figure 9: all passes of a type, then the next type
+        return [[i] for i in ranked for _ in range(counts[i])]
     plan = []
     for s in range(1, n + 1):
         slot = [i for i in ranked if (s * counts[i]) // n > ((s - 1) * counts[i]) // n]
@@ -103,7 +109,8 @@ class NucleusSolver(Behavior):
         if cons:
             if data.plan is None:
                 data.plan = interleave_plan([(b.name, b.params.importance, b.params.order)
-                                             for b, _ in cons], self.params.iterations)
+                                             for b, _ in cons], self.params.iterations,
+                                            self.params.interleave)
             for b, d in cons:
                 b.begin_substep(ctx, d)
             for slot in data.plan:

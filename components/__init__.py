@@ -1,10 +1,11 @@
 """Built-in components (registered through the ``lokigraph.components`` entry point)."""
 
+from .colliders import ShapeCollider
 from .core import Dynamic, Kinematic, Pins, RestSpring
 from .materials import (Attachment, DiscreteShell, Goal, Pressure, Rigid, Rod, Stitch,
                         Volume)
 
 BUILTIN_COMPONENTS = [Dynamic, Kinematic, Pins, RestSpring, DiscreteShell, Rod, Volume, Goal,
-                      Attachment, Stitch, Pressure, Rigid]
+                      Attachment, Stitch, Pressure, Rigid, ShapeCollider]
 
 __all__ = ["BUILTIN_COMPONENTS"] + [c.__name__ for c in BUILTIN_COMPONENTS]

@@ -31,8 +31,13 @@ class DiscreteShell(Component):
     bend_angle_dropoff: float = Field(0.0, ge=0, description="Bend stiffness grows by "
                                       "(1 + dropoff |angle - rest| / pi) [-] (Maya's dropoff).")
     stretch_damping: float = Field(0.0, ge=0, description="Stretch damping (XPBD beta) [s].")
+    rest_length_scale: float = Field(1.0, gt=0, description="Scales every rest length [-] "
+                                     "(Maya's restLengthScale).")
     rest_channel: str | None = Field(None, description="Channel with rest positions (n, 3); "
                                                        "default: the initial shape.")
+    tethers: bool = Field(True, description="Long-range tethers to pinned vertices (inextensible "
+                                            "materials only): no sag beyond rest distance.")
+    max_tether_anchors: int = Field(4, ge=1, description="Tethers per vertex (nearest pins).")
 
 
 class Rod(Component):
@@ -49,7 +54,12 @@ class Rod(Component):
     bend_resistance: float | None = Field(None, ge=0, description="Bending stiffness EI [N m^2]; "
                                           "null = E pi r^4 / 4 (1e-9 if inextensible).")
     compression_ratio: float = Field(1.0, ge=0, description="Compression/stretch resistance.")
+    rest_length_scale: float = Field(1.0, gt=0, description="Scales every rest length [-] "
+                                     "(Maya's restLengthScale).")
     rest_channel: str | None = Field(None, description="Channel with rest positions (n, 3).")
+    tethers: bool = Field(True, description="Long-range tethers to pinned vertices (inextensible "
+                                            "only).")
+    max_tether_anchors: int = Field(2, ge=1, description="Tethers per vertex (nearest pins).")
 
 
 class Volume(Component):
