@@ -1,5 +1,6 @@
 """Built-in behaviors (registered through the ``lokigraph.behaviors`` entry point)."""
 
+from .air import AirDrag, WindField
 from .core import Gravity, HardPins, KinematicAnimation, RestSpringForce
 from .materials import (AttachmentConstraint, BendConstraint, GoalConstraint,
                         PressureConstraint, PressureForce, RigidConstraint, ShearConstraint,
@@ -8,7 +9,7 @@ from .materials import (AttachmentConstraint, BendConstraint, GoalConstraint,
 from .nucleus import NucleusSolver
 from .shapes import ShapeCollisionConstraint
 
-BUILTIN_BEHAVIORS = [Gravity, RestSpringForce, PressureForce, KinematicAnimation, HardPins,
+BUILTIN_BEHAVIORS = [WindField, AirDrag, Gravity, RestSpringForce, PressureForce, KinematicAnimation, HardPins,
                      StretchConstraint, TetherConstraint, ShearConstraint, BendConstraint, TetVolumeConstraint,
                      GoalConstraint, AttachmentConstraint, StitchConstraint, PressureConstraint,
                      RigidConstraint, ShapeCollisionConstraint, NucleusSolver]

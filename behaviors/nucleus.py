@@ -30,7 +30,8 @@ from pydantic import Field
 
 from lokigraph.behavior import Behavior, Params
 from lokigraph.components.core import Dynamic
-from lokigraph.kernels import implicit_drag_solve
+
+from .air_kernels import implicit_drag_update_inv_mass
 
 
 class NucleusParams(Params):
@@ -95,8 +96,7 @@ class NucleusSolver(Behavior):
         v += (h * m.particle_inv_mass)[:, None] * st.particle_f
         D = st.fields.get("drag_D")
         if D is not None:  # implicit drag: (M + h D) v' = M v + h D u   (per vertex, 3x3)
-            implicit_drag_solve(v, m.particle_mass, D, st.fields["drag_Du"], h,
-                                m.particle_inv_mass)
+            implicit_drag_update_inv_mass(v, m.particle_inv_mass, D, st.fields["drag_u"], h)
         if data.damp_rate.any():
             v *= np.exp(-data.damp_rate * h)[:, None]
         p = data.p

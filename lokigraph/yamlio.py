@@ -70,7 +70,23 @@ def _construct(node, path: tuple, locs: Locations, errors: list[Diagnostic]):
     return _scalar(node)
 
 
-_resolver_loader = yaml.SafeLoader("")
+class _Loader(yaml.SafeLoader):
+    """SafeLoader that also reads ``1e6`` / ``1.0e6`` as floats (YAML 1.2 style); PyYAML's
+    YAML 1.1 resolver reads them as strings, which would silently become channel names."""
+
+
+_Loader.yaml_implicit_resolvers = {k: list(v) for k, v in
+                                   yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    __import__("re").compile(r"""^(?:[-+]?(?:[0-9][0-9_]*)\.[0-9_]*(?:[eE][-+]?[0-9]+)?
+                    |[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)
+                    |\.[0-9_]+(?:[eE][-+][0-9]+)?
+                    |[-+]?\.(?:inf|Inf|INF)
+                    |\.(?:nan|NaN|NAN))$""", __import__("re").X),
+    list("-+0123456789."))
+
+_resolver_loader = _Loader("")
 
 
 def _scalar(node):
@@ -81,7 +97,7 @@ def _scalar(node):
 def load_yaml_text(text: str, file: str = "<string>") -> tuple[object, Locations]:
     locs = Locations(file)
     try:
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        node = yaml.compose(text, Loader=_Loader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = getattr(exc, "problem", None) or str(exc)

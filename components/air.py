@@ -1,0 +1,64 @@
+"""Air: a wind field (data-less element) and per-object drag and lift parameters."""
+
+from __future__ import annotations
+
+from typing import ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from lokigraph.component import Component, Paintable
+
+Vec3 = tuple[float, float, float]
+
+
+class WindKey(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    frame: float
+    speed: float | None = Field(None, description="Wind speed at this key [m/s].")
+    direction: Vec3 | None = Field(None, description="Wind direction at this key.")
+
+
+class Wind(Component):
+    """A uniform wind with optional smooth deterministic gusts (noise), keyable.
+
+    u(x, t) = speed * direction + gusts, gusts of RMS noise * speed with wavelengths up to
+    ``noise_scale`` (see :func:`lokigraph.behaviors.air_kernels.wind_velocity`).
+    """
+
+    direction: Vec3 = Field((1.0, 0.0, 0.0), description="Wind direction (normalised).")
+    speed: float = Field(0.0, description="Wind speed [m/s].")
+    noise: float = Field(0.0, ge=0, description="Gust amplitude relative to speed [-].")
+    noise_scale: float = Field(1.0, gt=0, description="Largest gust wavelength [m].")
+    seed: int = Field(0, description="Seed of the gust pattern.")
+    keys: list[WindKey] = Field(default_factory=list, description="Keyed speed / direction.")
+
+
+class Drag(Component):
+    """Air drag and lift of a dynamic element, solved implicitly per vertex (stable at any h).
+
+    model ``linear``: isotropic, ``coefficient`` per unit area (cloth) / length (hair) / vertex
+    (points) [kg/(s m^2), kg/(s m), kg/s]; ``anisotropic``: ``normal``/``tangent`` coefficients per
+    unit area (faces) or cross-flow/along (rods); ``ergun``: the Ergun anisotropic drag of the
+    Avatar supplement eq. 1-3 with the user scales xi_D, xi_perp, xi_par, xi_N and degree c.
+    Lift (eq. 4) scales with ``lift`` (xi_L); it needs faces or rods.
+    """
+
+    needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
+    model: Literal["linear", "anisotropic", "ergun"] = "linear"
+    coefficient: Paintable = Field(0.0, description="Isotropic linear drag (see model). "
+                                                    "Paintable.")
+    normal: float = Field(0.0, ge=0, description="Anisotropic: coefficient along the face normal "
+                                                 "(rods: across the rod).")
+    tangent: float = Field(0.0, ge=0, description="Anisotropic: coefficient in the face plane "
+                                                  "(rods: along the rod).")
+    xi_D: float = Field(1.0, ge=0, description="Ergun global drag scale [-] (eq. 2).")
+    xi_perp: float = Field(1.0, ge=0, description="Ergun normal drag scale [-].")
+    xi_par: float = Field(1.0, ge=0, description="Ergun tangential drag scale [-].")
+    xi_N: float = Field(1.0, ge=0, description="Ergun non-linear term scale [-].")
+    degree: float = Field(1.0, ge=0, description="Ergun drag degree c [-].")
+    fiber_diameter: float = Field(1e-4, gt=0, description="Fibre diameter D [m].")
+    material_fraction: float = Field(0.3, gt=0, lt=1, description="Solid fraction gamma [-].")
+    thickness: float = Field(5e-4, gt=0, description="Material thickness for element volume [m].")
+    fluid_density: float = Field(1.204, gt=0, description="Air density [kg/m^3].")
+    fluid_viscosity: float = Field(1.81e-5, gt=0, description="Dynamic viscosity [Pa s].")
+    lift: float = Field(0.0, ge=0, description="Lift scale xi_L [-] (eq. 4).")
