@@ -424,6 +424,32 @@ def _closest_triangles(P, X, tris):
     return best, bary
 
 
+@njit(cache=True)
+def project_plane(p, w, attach, bary):
+    """Sliding attachment: vertex attach[j, 0] stays on the plane of triangle attach[j, 1:] at
+    the barycentric point bary[j] (normal direction only; free to slide tangentially)."""
+    for j in range(attach.shape[0]):
+        v, a, b, c = attach[j, 0], attach[j, 1], attach[j, 2], attach[j, 3]
+        e1 = p[b] - p[a]
+        e2 = p[c] - p[a]
+        n = np.cross(e1, e2)
+        ln = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+        if ln < 1e-30:
+            continue
+        n = n / ln
+        s = bary[j, 0] * p[a] + bary[j, 1] * p[b] + bary[j, 2] * p[c]
+        C = (p[v, 0] - s[0]) * n[0] + (p[v, 1] - s[1]) * n[1] + (p[v, 2] - s[2]) * n[2]
+        den = w[v] + bary[j, 0] ** 2 * w[a] + bary[j, 1] ** 2 * w[b] + bary[j, 2] ** 2 * w[c]
+        if den <= 0.0:
+            continue
+        dl = -C / den
+        for k in range(3):
+            p[v, k] += w[v] * dl * n[k]
+            p[a, k] -= w[a] * bary[j, 0] * dl * n[k]
+            p[b, k] -= w[b] * bary[j, 1] * dl * n[k]
+            p[c, k] -= w[c] * bary[j, 2] * dl * n[k]
+
+
 @dataclass
 class _Attach:
     attach: np.ndarray  # (m, 4): vertex, tri a, b, c (global)
@@ -485,8 +511,15 @@ class AttachmentConstraint(ConstraintBehavior):
                 d.bary[sl] = b
 
     def project(self, ctx, d, p):
-        K.project_attach_seq(p, ctx.model.particle_inv_mass, d.attach, d.bary, d.alpha, d.lam,
-                             ctx.dt, np.array([0, len(d.attach)], np.int64))
+        w = ctx.model.particle_inv_mass
+        fixed = ~d.sliding
+        if fixed.all():
+            K.project_attach_seq(p, w, d.attach, d.bary, d.alpha, d.lam, ctx.dt,
+                                 np.array([0, len(d.attach)], np.int64))
+        else:
+            K.project_attach_seq(p, w, d.attach[fixed], d.bary[fixed], d.alpha[fixed],
+                                 d.lam[fixed], ctx.dt, np.array([0, int(fixed.sum())], np.int64))
+            project_plane(p, w, d.attach[d.sliding], d.bary[d.sliding])
 
     def residual(self, ctx, d, p):
         return float(K.residual_attach(p, d.attach, d.bary)[0])

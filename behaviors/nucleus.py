@@ -93,12 +93,12 @@ class NucleusSolver(Behavior):
         m, st, ctl = ctx.model, ctx.state, ctx.control
         h = ctx.dt
         x, v = st.particle_q, st.particle_qd
+        if data.damp_rate.any():  # damp the old velocity (not the force increment, which
+            v *= np.exp(-data.damp_rate * h)[:, None]  # would bias static equilibria)
         v += (h * m.particle_inv_mass)[:, None] * st.particle_f
         D = st.fields.get("drag_D")
         if D is not None:  # implicit drag: (M + h D) v' = M v + h D u   (per vertex, 3x3)
             implicit_drag_update_inv_mass(v, m.particle_inv_mass, D, st.fields["drag_u"], h)
-        if data.damp_rate.any():
-            v *= np.exp(-data.damp_rate * h)[:, None]
         p = data.p
         np.multiply(v, h, out=p)
         p += x

@@ -45,6 +45,14 @@ def _parser() -> argparse.ArgumentParser:
 
     sub.add_parser("behaviors", help="list registered behaviors and components")
 
+    bn = sub.add_parser("bench", help="time per frame and error over a grid of settings")
+    bn.add_argument("scene")
+    bn.add_argument("--sweep", action="append", default=[],
+                    help="KEY=V1,V2,... (substeps, iterations, solver or node.param)")
+    bn.add_argument("--frames", type=int, default=24, help="frames per run (first is warm-up)")
+    bn.add_argument("--reference", help="KEY=V,... setting of a tight reference run")
+    bn.add_argument("--out", default="bench_out", help="folder for bench.csv/json/png")
+
     sc = sub.add_parser("schema", help="JSON schema of components and behavior parameters")
     sc.add_argument("--out", help="write to this file instead of stdout")
     return p
@@ -88,6 +96,25 @@ def _dispatch(args) -> int:
             atomic_write(Path(args.out), lambda p: p.write_text(text))
         else:
             print(text)
+        return EXIT_OK
+    if args.command == "bench":
+        from pathlib import Path
+
+        from .bench import format_table, run_bench
+
+        sweeps = {}
+        for sw in args.sweep or ["substeps=4"]:
+            k, _, v = sw.partition("=")
+            if not v:
+                raise InputError(f"--sweep {sw!r}: expected KEY=V1,V2")
+            sweeps[k] = v.split(",")
+        ref = None
+        if args.reference:
+            ref = dict(x.split("=") for x in args.reference.split(","))
+        rows = run_bench(args.scene, sweeps, args.frames, Path(args.out), ref)
+        print(format_table(rows))
+        print(f"(results in {args.out}/bench.csv, bench.json, bench.png; pareto = fastest "
+              f"setting for its error level)")
         return EXIT_OK
     from .api import compile_file
 
