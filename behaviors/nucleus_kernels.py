@@ -14,7 +14,8 @@ step per constraint) in the XPBD form:
 multiplier carries the accumulated force, a compliance means the same stiffness (1/alpha) at any
 substep size and iteration count once the iterations converge: a spring of compliance alpha
 [m/N] under a load F [N] stretches by F * alpha. The solver resets ``lam`` to 0 at the start of
-every substep; ``lam / h**2`` is the constraint force (for a distance constraint, in N).
+every substep; the constraint force on vertex i is ``grad_i C * lam / h**2`` (for a distance
+constraint ``-lam / h**2`` is the tension [N]).
 
 Array conventions
 -----------------
@@ -67,6 +68,17 @@ Limitations
 - The global volume constraint and shape matching are sequential (one constraint or cluster at a
   time); shape matching uses a per-iteration stiffness in [0, 1], so its effect depends on the
   iteration count (use ``project_goal`` for a compliance-based pull).
+- Convergence is that of Gauss-Seidel on the constraint set, and some sets are singular where
+  it matters: hard stretch on an exactly flat sheet (out-of-plane motion changes lengths only to
+  second order), tet volumes alone on a Kuhn-subdivided box (the volume rows are rank
+  deficient at rest), the skip-one hair bend near straight (distance changes to second order
+  in the bend angle, so it barely straightens a hard-stretched strand). The angle bend with rest
+  pi straightens to about 1e-9 rad and then stops (the direction is undefined at pi).
+- A per-constraint compliance is resolution independent only if the caller scales it with the
+  element size (e.g. a membrane of stretch modulus k [N/m] gives an edge
+  ``alpha = L**2 / (k * A_edge)`` with A_edge the area the edge stands for).
+- A tet (or closed mesh) that has almost collapsed to a segment still gets the Newton step on
+  its volume, which can be large; only exact collapse (relative 1e-9) is skipped.
 """
 from __future__ import annotations
 
@@ -477,7 +489,9 @@ def project_dihedral(p, w, quads, rest, alpha, dropoff, lam, h, color_ptr):
     ``theta = atan2((N_A x N_B) . e_hat, N_A . N_B)`` with ``e = p_j - p_i``,
     ``N_A = e x (p_k - p_i)``, ``N_B = (p_l - p_i) x e``; theta is 0 for a flat hinge and lies in
     (-pi, pi]; ``C = wrap(theta - rest)``. This is Nucleus's ``acos(n_A . n_B) - theta_0`` made
-    signed, so that the Newton direction is defined at the flat rest state.
+    signed, so that the Newton direction is defined at the flat rest state. Sign: theta < 0 when
+    the wings fold towards the side N_A points to (a valley seen from there), > 0 for a ridge.
+    The effective compliance is ``alpha / bend_dropoff_scale(C, dropoff)``.
     """
     inv_h2 = 1.0 / (h * h)
     for c in range(color_ptr.shape[0] - 1):
@@ -538,8 +552,13 @@ def _tet_volume_one(j, p, w, tets, rest, alpha, lam, inv_h2):
         return
     den = (w0 * (g0x * g0x + g0y * g0y + g0z * g0z) + w1 * (g1x * g1x + g1y * g1y + g1z * g1z)
            + w2 * (g2x * g2x + g2y * g2y + g2z * g2z) + w3 * (g3x * g3x + g3y * g3y + g3z * g3z))
-    # |grad V| ~ area: below (1e-12 m)^4 the tet has collapsed to a segment or a point
-    if den <= _LEN_EPS ** 4 * (w0 + w1 + w2 + w3):
+    # |grad V| ~ face area: a tet whose faces are all (nearly) zero relative to its squared edge
+    # lengths has collapsed to a segment or a point; the Newton direction is then meaningless
+    gg = (g0x * g0x + g0y * g0y + g0z * g0z + g1x * g1x + g1y * g1y + g1z * g1z
+          + g2x * g2x + g2y * g2y + g2z * g2z + g3x * g3x + g3y * g3y + g3z * g3z)
+    s2 = _REL_EPS * (ax * ax + ay * ay + az * az + bx * bx + by * by + bz * bz
+                     + cx * cx + cy * cy + cz * cz)
+    if den <= 0.0 or gg <= s2 * s2:
         return
     at = al * inv_h2
     dl = (-c - at * lam[j]) / (den + at)
@@ -571,9 +590,10 @@ def project_tet_volume(p, w, tets, rest, alpha, lam, h, color_ptr):
     """Signed tet volume, coloured parallel sweep.
 
     tets (m, 4) int64, positively oriented; rest volume [m^3] (m,); alpha compliance
-    [m^3/Pa = m^6/J] (m,) (a bulk modulus K gives ``alpha = 1 / (K * rest)``); lam (m,) is
-    minus the pressure times h^2. ``C = (p1-p0) . ((p2-p0) x (p3-p0)) / 6 - rest``. The edges of
-    a tet get their stretch from ``project_stretch`` on ``topology.tet_edges``.
+    [m^3/Pa = m^6/J] (m,) (a bulk modulus K [Pa] gives ``alpha = rest / K``); lam (m,):
+    ``lam / h**2`` is the pressure [Pa] in the tet.
+    ``C = (p1-p0) . ((p2-p0) x (p3-p0)) / 6 - rest``. The edges of a tet get their stretch from
+    ``project_stretch`` on ``topology.tet_edges``.
     """
     inv_h2 = 1.0 / (h * h)
     for c in range(color_ptr.shape[0] - 1):
@@ -748,7 +768,7 @@ def project_mesh_volume(p, w, tris, target, alpha, lam, h, work):
     tris (T, 3) int64; target volume [m^3]; alpha compliance [m^3/Pa] (scalar); lam: (1,)
     array; work: scratch (n, 4) float64 (same n as p), contents overwritten. V as in
     ``mesh_volume`` (open meshes: w.r.t. the mean corner, whose dependence on p is included in
-    the gradient, so the update conserves momentum). ``-lam[0] / h**2`` is the gauge pressure
+    the gradient, so the update conserves momentum). ``lam[0] / h**2`` is the gauge pressure
     [Pa] that holds the volume. Returns V before the update. Sequential.
     """
     m = tris.shape[0]
@@ -758,6 +778,7 @@ def project_mesh_volume(p, w, tris, target, alpha, lam, h, work):
     cx = 0.0
     cy = 0.0
     cz = 0.0
+    sxx = 0.0
     for t in range(m):
         for k in range(3):
             v = tris[t, k]
@@ -768,10 +789,12 @@ def project_mesh_volume(p, w, tris, target, alpha, lam, h, work):
             cx += p[v, 0]
             cy += p[v, 1]
             cz += p[v, 2]
+            sxx += p[v, 0] * p[v, 0] + p[v, 1] * p[v, 1] + p[v, 2] * p[v, 2]
     inv3m = 1.0 / (3.0 * m)
     cx *= inv3m
     cy *= inv3m
     cz *= inv3m
+    r2 = max(sxx * inv3m - (cx * cx + cy * cy + cz * cz), 0.0)  # mean squared radius [m^2]
     # pass 2: volume, per-vertex partial gradient (c held fixed), valence, and their sum S
     vol = 0.0
     sx = 0.0
@@ -820,6 +843,7 @@ def project_mesh_volume(p, w, tris, target, alpha, lam, h, work):
     # pass 3: full gradient grad_v = g_v - valence_v / (3m) * S, stored in work; denominator.
     # work[v, 3] > 0 marks a vertex not yet finalised; it is negated once done.
     den = 0.0
+    gg = 0.0
     for t in range(m):
         for k in range(3):
             v = tris[t, k]
@@ -833,9 +857,16 @@ def project_mesh_volume(p, w, tris, target, alpha, lam, h, work):
                 work[v, 1] = gy
                 work[v, 2] = gz
                 work[v, 3] = -val
-                den += w[v] * (gx * gx + gy * gy + gz * gz)
+                g2 = gx * gx + gy * gy + gz * gz
+                gg += g2
+                den += w[v] * g2
     al = alpha
-    if den <= 0.0 or not al < _INF:
+    # a mesh collapsed to a point or a line has no volume gradient (relative to its size)
+    degenerate = gg <= (_REL_EPS * r2) * (_REL_EPS * r2)
+    if degenerate or den <= 0.0 or not al < _INF:
+        for t in range(m):  # leave work clean (valence markers) for the next call
+            for k in range(3):
+                work[tris[t, k], 3] = 0.0
         return vol
     c = vol - target
     at = al / (h * h)

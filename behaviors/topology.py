@@ -270,17 +270,21 @@ def _curve_edges(edges, n):
     return edges, int(n)
 
 
-def curve_bend_triplets(edges, vertex_count: int | None = None) -> np.ndarray:
+def curve_bend_triplets(edges, vertex_count: int | None = None,
+                        apex_first: bool = False) -> np.ndarray:
     """Consecutive edge pairs of a curve network as triplets ``(a, b, c)``: edges ``(a, b)`` and
-    ``(b, c)`` meet at the centre ``b``. Shape (P, 3).
+    ``(b, c)`` meet at the centre ``b``. Shape (P, 3), C-contiguous.
 
     For a polyline every interior vertex gives one triplet; a vertex of degree d gives all
-    d (d - 1) / 2 pairs. Feed ``triplets[:, [1, 0, 2]]`` (apex first) to the angle kernel for
-    the type-2 curve bend, or :func:`curve_skip_pairs` to the stretch kernel.
+    d (d - 1) / 2 pairs. With ``apex_first`` the rows are ``(b, a, c)``, the layout of the angle
+    kernel (type-2 curve bend); :func:`curve_skip_pairs` gives the stretch-kernel alternative.
     """
     edges, n = _curve_edges(edges, vertex_count)
     ptr, nbr = _csr_adjacency(edges, n)
-    return _triplets_from_adjacency(ptr, nbr)
+    trip = _triplets_from_adjacency(ptr, nbr)
+    if apex_first:
+        trip = np.ascontiguousarray(trip[:, [1, 0, 2]])
+    return trip
 
 
 def curve_skip_pairs(edges, vertex_count: int | None = None) -> np.ndarray:
@@ -355,6 +359,10 @@ def tet_topology(tets) -> TetTopology:
     """Edges, faces, face adjacency and outward boundary faces of a tetrahedral mesh."""
     tets = _as_index_array(tets, 4, "tets")
     t = tets.shape[0]
+    if t == 0:
+        z3 = np.zeros((0, 3), dtype=np.int64)
+        return TetTopology(np.zeros((0, 2), dtype=np.int64), z3, np.zeros((0, 2), np.int64),
+                           z3.copy(), np.zeros((0, 4), dtype=np.int64))
     oriented = tets[:, _TET_FACES].reshape(-1, 3)  # (4T, 3), outward winding
     keys = np.sort(oriented, axis=1)
     faces, inverse = _unique_sorted_rows(keys)
