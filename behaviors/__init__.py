@@ -1,6 +1,7 @@
 """Built-in behaviors (registered through the ``lokigraph.behaviors`` entry point)."""
 
 from .air import AirDrag, WindField
+from .collision.contacts import CollisionConstraint, CollisionDetect, PenetrationCheck
 from .core import Gravity, HardPins, KinematicAnimation, RestSpringForce
 from .materials import (AttachmentConstraint, BendConstraint, GoalConstraint,
                         PressureConstraint, PressureForce, RigidConstraint, ShearConstraint,
@@ -12,6 +13,7 @@ from .shapes import ShapeCollisionConstraint
 BUILTIN_BEHAVIORS = [WindField, AirDrag, Gravity, RestSpringForce, PressureForce, KinematicAnimation, HardPins,
                      StretchConstraint, TetherConstraint, ShearConstraint, BendConstraint, TetVolumeConstraint,
                      GoalConstraint, AttachmentConstraint, StitchConstraint, PressureConstraint,
-                     RigidConstraint, ShapeCollisionConstraint, NucleusSolver]
+                     RigidConstraint, ShapeCollisionConstraint, CollisionDetect, CollisionConstraint,
+                     PenetrationCheck, NucleusSolver]
 
 __all__ = ["BUILTIN_BEHAVIORS"] + [c.__name__ for c in BUILTIN_BEHAVIORS]

@@ -117,6 +117,8 @@ class NucleusSolver(Behavior):
                 for i in slot:
                     b, d = cons[i]
                     b.project(ctx, d, p)
+            for b, d in cons:
+                b.finalize(ctx, d, p)
         np.subtract(p, x, out=v)
         v *= 1.0 / h
         x[:] = p

@@ -85,6 +85,9 @@ class Behavior:
     def step(self, ctx: "StepContext", data) -> None:
         """Run one substep over all bound elements."""
 
+    def frame_end(self, ctx: "StepContext", data) -> None:
+        """Called once at the end of every frame (diagnostics, per-frame statistics)."""
+
     def describe(self, data) -> str:
         """One line for ``lokigraph plan`` (e.g. counts of packed items)."""
         return ""
@@ -114,6 +117,9 @@ class ConstraintBehavior(Behavior):
 
     def project(self, ctx: "StepContext", data, p: np.ndarray) -> None:  # pragma: no cover
         raise NotImplementedError
+
+    def finalize(self, ctx: "StepContext", data, p: np.ndarray) -> None:
+        """Called once after the last iteration (e.g. a final collision pass)."""
 
     def residual(self, ctx: "StepContext", data, p: np.ndarray) -> float:
         """Max |C| over this type's constraints (for diagnostics); NaN if not implemented."""

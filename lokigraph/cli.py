@@ -71,6 +71,8 @@ def main(argv: list[str] | None = None) -> int:
     except LokigraphError as exc:
         print(f"error: {exc}" if not isinstance(exc, InputError) else str(exc), file=sys.stderr)
         return exc.exit_code
+    except BrokenPipeError:  # output piped into e.g. `head`
+        return EXIT_OK
     except KeyboardInterrupt:
         print("interrupted; frames written so far are kept", file=sys.stderr)
         return 130

@@ -126,6 +126,11 @@ class Simulation:
                     else:
                         stats[k] = stats.get(k, 0.0) + v
         self.frame += 1
+        ctx = StepContext(self.model, self.state, self.control, self.model.dt, self.state.time,
+                          self.substep_index, self.frame, self._constraints, {})
+        for b in self._steps:
+            b.behavior.frame_end(ctx, b.data)
+        stats.update({k: float(v) for k, v in ctx.stats.items()})
         return stats
 
 

@@ -1,0 +1,642 @@
+"""Collision detection per collision group and the contact response in the Nucleus loop.
+
+Per substep, ``CollisionDetect`` (collision stage) builds swept, inflated boxes of every member's
+points, edges and triangles over the substep's predicted motion, finds vertex-face and
+edge-edge candidates with the BVH, filters them by the exclusion rules and records the state of
+each candidate at the start of the substep (distance, contact normal, which side). The solver
+then projects ``CollisionConstraint`` in its interleaved loop like any other constraint type:
+each candidate is a unilateral constraint ``n0 . (x_a - x_b) >= target`` along the contact normal
+taken at the start of the substep, with position-based Coulomb friction. Because the side is
+taken from the start of the substep and the candidates cover the whole swept motion, a fast
+object cannot tunnel (the space-time idea of Nucleus section 7) as long as the start is free.
+
+Multilevel exclusion: per object (dynamic-dynamic, dynamic-kinematic, self), per element pair
+(``exclude_pairs``), per vertex (the ``collide`` map) and per named vertex set
+(``nocollide_sets``). One-sided colliders push only toward the outer side of their triangles and
+let a vertex that starts inside through to the outside. Thickness maps scale the thickness per
+vertex on the outer and inner side. Proximity-tolerant mode (Loki): a pair already closer than
+its thickness at the start of the substep only stops approaching (target = start gap).
+
+Limitations: edge-edge contacts involving a one-sided collider are skipped (its vertex-face
+contacts carry it); friction is position based (static/kinetic as one coefficient).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from pydantic import Field
+
+from lokigraph.behavior import Behavior, ConstraintBehavior, ConstraintParams
+from lokigraph.component import resolve_paintable
+from lokigraph.components.collision import Collider, CollisionGroup, CollisionResponse
+
+from . import broadphase as bp
+from .narrowphase import _pt_tri_sq, _seg_seg_sq
+
+_TOL = 1e-12
+
+
+@dataclass
+class _Group:
+    name: str
+    verts: np.ndarray  # global vertex indices of all members
+    tris: np.ndarray  # (T, 3) global
+    edges: np.ndarray  # (E, 2) global
+    tri_elem: np.ndarray
+    edge_elem: np.ndarray
+    vert_elem: np.ndarray  # per global vertex (-1 if not a member)
+    allow: np.ndarray  # (n_el, n_el) bool: may these elements collide
+    tolerant: np.ndarray  # (n_el, n_el) bool: proximity tolerant for this pair
+    th_out: np.ndarray  # per global vertex thickness outer [m]
+    th_in: np.ndarray
+    friction: np.ndarray  # per global vertex
+    visible: np.ndarray  # per global vertex bool
+    setmask: np.ndarray  # per global vertex int64 bitmask of nocollide sets
+    one_sided: np.ndarray  # per element bool
+    kinematic_el: np.ndarray  # per element bool
+    do_vf: bool
+    do_ee: bool
+    margin: float
+    strength: float
+    damping: float
+    restitution: float
+    friction_scale: float
+    buf_vf: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
+    buf_ee: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
+
+
+@dataclass
+class _Contacts:
+    groups: list
+    x1: np.ndarray  # predicted positions scratch
+    # packed contacts of all groups, rebuilt each substep
+    vf: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    vf_n: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    vf_target: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    vf_mu: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    vf_onesided: np.ndarray = field(default_factory=lambda: np.zeros(0, np.bool_))
+    ee: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
+    ee_n: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    ee_target: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    ee_mu: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    strength: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    ee_strength: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    damping: float = 0.0
+    tolerant_count: int = 0
+    lam: None = None
+
+
+def _members(ctx, e, g):
+    out = []
+    for name in g.members:
+        try:
+            out.append(ctx.scene.element(name))
+        except KeyError:
+            import difflib
+
+            near = difflib.get_close_matches(name, [x.name for x in ctx.scene.elements], n=1)
+            ctx.error(e, "CollisionGroup.members", f"no element named {name!r}"
+                      + (f"; did you mean {near[0]!r}?" if near else ""))
+    return out
+
+
+class CollisionDetect(Behavior):
+    """Broad phase (BVH over swept boxes) and candidate filtering for every collision group."""
+
+    stage = "collision"
+    requires = (CollisionGroup,)
+    writes = ("contacts",)
+
+    def bind(self, ctx, elements):
+        m = ctx.model
+        n = m.particle_count
+        groups = []
+        for e in elements:
+            g = e.get(CollisionGroup)
+            resp = e.get(CollisionResponse) or CollisionResponse()
+            mem = _members(ctx, e, g)
+            mem = [x for x in mem if x.geometry is not None]
+            if not mem:
+                continue
+            names = [x.name for x in mem]
+            idx = {x.name: i for i, x in enumerate(mem)}
+            k = len(mem)
+            vert_elem = np.full(n, -1, np.int64)
+            th_out = np.zeros(n)
+            th_in = np.zeros(n)
+            fric = np.zeros(n)
+            vis = np.zeros(n, np.bool_)
+            setmask = np.zeros(n, np.int64)
+            set_bits: dict[str, int] = {}
+            tris, edges, tri_el, edge_el, verts = [], [], [], [], []
+            one_sided = np.zeros(k, np.bool_)
+            kin = np.zeros(k, np.bool_)
+            cols = []
+            for i, x in enumerate(mem):
+                c = x.get(Collider) or Collider()
+                cols.append(c)
+                sl = x.vertex_slice
+                vert_elem[sl] = i
+                th_out[sl] = c.thickness * resolve_paintable(c.thickness_outer, x,
+                                                             "Collider.thickness_outer")
+                th_in[sl] = c.thickness * resolve_paintable(c.thickness_inner, x,
+                                                            "Collider.thickness_inner")
+                fric[sl] = c.friction
+                vis[sl] = resolve_paintable(c.collide, x, "Collider.collide") > 0
+                for sname, vs in c.nocollide_sets.items():
+                    if sname not in set_bits:
+                        if len(set_bits) >= 62:
+                            ctx.error(e, "Collider.nocollide_sets", "at most 62 set names")
+                            continue
+                        set_bits[sname] = 1 << len(set_bits)
+                    vs = np.asarray(vs, np.int64)
+                    if len(vs) and (vs.min() < 0 or vs.max() >= x.vertex_count):
+                        ctx.error(x, f"Collider.nocollide_sets.{sname}", "vertex out of range")
+                        continue
+                    setmask[vs + x.vertex_offset] |= set_bits[sname]
+                one_sided[i] = c.one_sided
+                kin[i] = bool(m.particle_kinematic[sl].all())
+                geo = x.geometry
+                verts.append(np.arange(sl.start, sl.stop))
+                if len(geo.triangles):
+                    tris.append(geo.triangles + x.vertex_offset)
+                    tri_el.append(np.full(len(geo.triangles), i))
+                    from lokigraph.behaviors.topology import triangle_edges
+
+                    ed = triangle_edges(geo.triangles)
+                else:
+                    ed = geo.edges
+                if len(ed):
+                    edges.append(ed + x.vertex_offset)
+                    edge_el.append(np.full(len(ed), i))
+            allow = np.zeros((k, k), np.bool_)
+            tol = np.zeros((k, k), np.bool_)
+            for i in range(k):
+                for j in range(k):
+                    ci, cj = cols[i], cols[j]
+                    if kin[i] and kin[j]:
+                        continue
+                    if i == j:
+                        allow[i, j] = "self" in g.methods and ci.collide_self
+                    elif kin[i] or kin[j]:
+                        allow[i, j] = ci.collide_kinematic and cj.collide_kinematic
+                        tol[i, j] = g.proximity_tolerant != "off"
+                    else:
+                        allow[i, j] = ci.collide_dynamic and cj.collide_dynamic
+                    if g.proximity_tolerant == "on":
+                        tol[i, j] = True
+            for a, b in g.exclude_pairs:
+                for nm in (a, b):
+                    if nm not in idx:
+                        ctx.error(e, "CollisionGroup.exclude_pairs", f"{nm!r} is not a member")
+                if a in idx and b in idx:
+                    allow[idx[a], idx[b]] = allow[idx[b], idx[a]] = False
+            cat = lambda xs, s: np.concatenate(xs).astype(np.int64) if xs else np.zeros(  # noqa
+                s, np.int64)
+            groups.append(_Group(
+                e.name, cat(verts, (0,)), cat(tris, (0, 3)), cat(edges, (0, 2)),
+                cat(tri_el, (0,)), cat(edge_el, (0,)), vert_elem, allow, tol, th_out, th_in,
+                fric, vis, setmask, one_sided, kin, "vertex_face" in g.methods,
+                "edge_edge" in g.methods, g.margin, resp.strength, resp.damping,
+                resp.restitution, resp.friction_scale))
+            del names
+        if not groups:
+            return None
+        return _Contacts(groups, np.zeros((n, 3)))
+
+    def init_state(self, model, state, data):
+        state.fields["contacts"] = data
+
+    def step(self, ctx, d):
+        st, m = ctx.state, ctx.model
+        h = ctx.dt
+        x = st.particle_q
+        # predicted end-of-substep positions (before constraints): x + h (v + h f / m)
+        x1 = d.x1
+        np.multiply(st.particle_f, (h * m.particle_inv_mass)[:, None], out=x1)
+        x1 += st.particle_qd
+        x1 *= h
+        x1 += x
+        kin = m.particle_kinematic
+        if kin.any():
+            x1[kin] = ctx.control.kinematic_q[kin]
+        vf_all, ee_all = [], []
+        tolerant = 0
+        for g in d.groups:  # loop over groups, not primitives
+            # boxes of both sets are inflated, so a pair is found within 2 * infl
+            infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
+            res = _detect_group(g, x, x1, infl, ctx.state.particle_qd, h)
+            vf_all.append(res[0])
+            ee_all.append(res[1])
+            tolerant += res[2]
+        _pack(d, vf_all, ee_all)
+        d.damping = max(g.damping for g in d.groups)
+        d.tolerant_count = tolerant
+        ctx.stats["contacts_vf"] = ctx.stats.get("contacts_vf", 0) + len(d.vf)
+        ctx.stats["contacts_ee"] = ctx.stats.get("contacts_ee", 0) + len(d.ee)
+        ctx.stats["contacts_tolerant"] = ctx.stats.get("contacts_tolerant", 0) + tolerant
+
+    def describe(self, d):
+        return "; ".join(f"{g.name}: {len(g.verts)} vertices, {len(g.tris)} triangles, "
+                         f"{len(g.edges)} edges" for g in d.groups)
+
+
+def _detect_group(g, x, x1, infl, v, h):
+    vf = (np.zeros((0, 4), np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
+          np.zeros(0, np.bool_), g.strength)
+    ee = (np.zeros((0, 4), np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0), g.strength)
+    tol_count = 0
+    if g.do_vf and len(g.tris):
+        lo_v, hi_v = bp.primitive_boxes(x, g.verts, x1, infl)
+        lo_t, hi_t = bp.primitive_boxes(x, g.tris, x1, infl)
+        bv = bp.build_bvh(lo_v, hi_v)
+        bt = bp.build_bvh(lo_t, hi_t)
+        cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=g.buf_vf)
+        n = len(cand)
+        if n:
+            rows = np.zeros((n, 4), np.int64)
+            nrm = np.zeros((n, 3))
+            tgt = np.zeros(n)
+            mu = np.zeros(n)
+            one = np.zeros(n, np.bool_)
+            k, tc = _filter_vf(cand, g.verts, g.tris, g.tri_elem, g.vert_elem, g.allow,
+                               g.tolerant, g.th_out, g.th_in, g.friction, g.visible, g.setmask,
+                               g.one_sided, x, v, h, g.restitution, g.margin, rows, nrm, tgt,
+                               mu, one)
+            tol_count += tc
+            vf = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, one[:k], g.strength)
+    if g.do_ee and len(g.edges):
+        lo_e, hi_e = bp.primitive_boxes(x, g.edges, x1, infl)
+        be = bp.build_bvh(lo_e, hi_e)
+        cand = bp.query_self(be, g.edges, out=g.buf_ee)
+        n = len(cand)
+        if n:
+            rows = np.zeros((n, 4), np.int64)
+            nrm = np.zeros((n, 3))
+            tgt = np.zeros(n)
+            mu = np.zeros(n)
+            k, tc = _filter_ee(cand, g.edges, g.edge_elem, g.allow, g.tolerant, g.th_out,
+                               g.friction, g.visible, g.setmask, g.one_sided, x, v, h,
+                               g.restitution, g.margin, rows, nrm, tgt, mu)
+            tol_count += tc
+            ee = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, g.strength)
+    return vf, ee, tol_count
+
+
+def _pack(d, vf_all, ee_all):
+    d.vf = np.concatenate([a[0] for a in vf_all]) if vf_all else np.zeros((0, 4), np.int64)
+    d.vf_n = np.concatenate([a[1] for a in vf_all]) if vf_all else np.zeros((0, 3))
+    d.vf_target = np.concatenate([a[2] for a in vf_all]) if vf_all else np.zeros(0)
+    d.vf_mu = np.concatenate([a[3] for a in vf_all]) if vf_all else np.zeros(0)
+    d.vf_onesided = np.concatenate([a[4] for a in vf_all]) if vf_all else np.zeros(0, np.bool_)
+    d.strength = np.concatenate([np.full(len(a[0]), a[5]) for a in vf_all]) if vf_all \
+        else np.zeros(0)
+    d.ee = np.concatenate([a[0] for a in ee_all]) if ee_all else np.zeros((0, 4), np.int64)
+    d.ee_n = np.concatenate([a[1] for a in ee_all]) if ee_all else np.zeros((0, 3))
+    d.ee_target = np.concatenate([a[2] for a in ee_all]) if ee_all else np.zeros(0)
+    d.ee_mu = np.concatenate([a[3] for a in ee_all]) if ee_all else np.zeros(0)
+    d.ee_strength = np.concatenate([np.full(len(a[0]), a[4]) for a in ee_all]) if ee_all \
+        else np.zeros(0)
+
+
+@njit(cache=True)
+def _tri_normal(x, a, b, c):
+    e1 = x[b] - x[a]
+    e2 = x[c] - x[a]
+    n = np.cross(e1, e2)
+    ln = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+    if ln < 1e-300:
+        return n, 0.0
+    return n / ln, ln
+
+
+@njit(cache=True)
+def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, th_in, fric,
+               visible, setmask, one_sided, x, v, h, restitution, margin, rows, nrm, tgt, mu,
+               one):
+    """Keep allowed vertex-triangle candidates; record start normal, target gap, friction."""
+    k = 0
+    tcount = 0
+    for r in range(cand.shape[0]):
+        p = verts[cand[r, 0]]
+        t = cand[r, 1]
+        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        ep = vert_elem[p]
+        et = tri_elem[t]
+        if not allow[ep, et]:
+            continue
+        if not (visible[p] and visible[a] and visible[b] and visible[c]):
+            continue
+        if setmask[p] & setmask[a] & setmask[b] & setmask[c]:
+            continue
+        d2, b0, b1, b2 = _pt_tri_sq(x[p, 0], x[p, 1], x[p, 2], x[a, 0], x[a, 1], x[a, 2],
+                                     x[b, 0], x[b, 1], x[b, 2], x[c, 0], x[c, 1], x[c, 2])
+        d0 = np.sqrt(d2)
+        tn, area2 = _tri_normal(x, a, b, c)
+        q = b0 * x[a] + b1 * x[b] + b2 * x[c]
+        diff = x[p] - q
+        side = diff[0] * tn[0] + diff[1] * tn[1] + diff[2] * tn[2]
+        if one_sided[et]:
+            if area2 == 0.0:
+                continue
+            n = tn
+            gap0 = side  # signed: negative = inside
+            th = th_out[p] + (th_out[a] * b0 + th_out[b] * b1 + th_out[c] * b2)
+            onesd = True
+        else:
+            if d0 > 1e-12:
+                n = diff / d0
+            elif area2 > 0.0:
+                n = tn if side >= 0.0 else -tn
+            else:
+                continue
+            gap0 = d0
+            if side >= 0.0:
+                th = th_out[p] + (th_out[a] * b0 + th_out[b] * b1 + th_out[c] * b2)
+            else:
+                th = th_out[p] + (th_in[a] * b0 + th_in[b] * b1 + th_in[c] * b2)
+            onesd = False
+        # relative normal approach speed at the start (for restitution)
+        vr = v[p] - (b0 * v[a] + b1 * v[b] + b2 * v[c])
+        vn = vr[0] * n[0] + vr[1] * n[1] + vr[2] * n[2]
+        target = th
+        if restitution > 0.0 and vn < 0.0:
+            target = th - restitution * vn * h
+        if gap0 < th and tolerant[ep, et]:
+            target = max(gap0, 0.0) if not onesd else gap0
+            tcount += 1
+        rows[k, 0] = p
+        rows[k, 1] = a
+        rows[k, 2] = b
+        rows[k, 3] = c
+        nrm[k, 0] = n[0]
+        nrm[k, 1] = n[1]
+        nrm[k, 2] = n[2]
+        tgt[k] = target
+        mu[k] = 0.5 * (fric[p] + (fric[a] + fric[b] + fric[c]) / 3.0)
+        one[k] = onesd
+        k += 1
+    return k, tcount
+
+
+@njit(cache=True)
+def _filter_ee(cand, edges, edge_elem, allow, tolerant, th, fric, visible, setmask, one_sided,
+               x, v, h, restitution, margin, rows, nrm, tgt, mu):
+    k = 0
+    tcount = 0
+    for r in range(cand.shape[0]):
+        i, j = cand[r, 0], cand[r, 1]
+        a0, a1 = edges[i, 0], edges[i, 1]
+        b0, b1 = edges[j, 0], edges[j, 1]
+        ea, eb = edge_elem[i], edge_elem[j]
+        if not allow[ea, eb] or one_sided[ea] or one_sided[eb]:
+            continue
+        if not (visible[a0] and visible[a1] and visible[b0] and visible[b1]):
+            continue
+        if setmask[a0] & setmask[a1] & setmask[b0] & setmask[b1]:
+            continue
+        d2, s, t = _seg_seg_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1], x[a1, 2],
+                               x[b0, 0], x[b0, 1], x[b0, 2], x[b1, 0], x[b1, 1], x[b1, 2])
+        d0 = np.sqrt(d2)
+        pa = (1 - s) * x[a0] + s * x[a1]
+        pb = (1 - t) * x[b0] + t * x[b1]
+        if d0 > 1e-12:
+            n = (pa - pb) / d0
+        else:
+            n = np.cross(x[a1] - x[a0], x[b1] - x[b0])
+            ln = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+            if ln < 1e-300:
+                continue
+            n = n / ln
+        thk = (1 - s) * th[a0] + s * th[a1] + (1 - t) * th[b0] + t * th[b1]
+        vr = (1 - s) * v[a0] + s * v[a1] - (1 - t) * v[b0] - t * v[b1]
+        vn = vr[0] * n[0] + vr[1] * n[1] + vr[2] * n[2]
+        target = thk
+        if restitution > 0.0 and vn < 0.0:
+            target = thk - restitution * vn * h
+        if d0 < thk and tolerant[ea, eb]:
+            target = d0
+            tcount += 1
+        rows[k, 0] = a0
+        rows[k, 1] = a1
+        rows[k, 2] = b0
+        rows[k, 3] = b1
+        nrm[k] = n
+        tgt[k] = target
+        mu[k] = 0.25 * (fric[a0] + fric[a1] + fric[b0] + fric[b1])
+        k += 1
+    return k, tcount
+
+
+@njit(cache=True)
+def project_vf(p, x, w, rows, nrm, target, mu, strength, damping, onesided):
+    """Gauss-Seidel over vertex-face contacts: n . (p_v - sum b_k p_k) >= target, plus
+    position-based Coulomb friction on the relative tangential motion of the substep."""
+    active = 0
+    for r in range(rows.shape[0]):
+        v, a, b, c = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+        d2, b0, b1, b2 = _pt_tri_sq(p[v, 0], p[v, 1], p[v, 2], p[a, 0], p[a, 1], p[a, 2],
+                                     p[b, 0], p[b, 1], p[b, 2], p[c, 0], p[c, 1], p[c, 2])
+        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+        qx = b0 * p[a, 0] + b1 * p[b, 0] + b2 * p[c, 0]
+        qy = b0 * p[a, 1] + b1 * p[b, 1] + b2 * p[c, 1]
+        qz = b0 * p[a, 2] + b1 * p[b, 2] + b2 * p[c, 2]
+        dx, dy, dz = p[v, 0] - qx, p[v, 1] - qy, p[v, 2] - qz
+        if not onesided[r]:
+            # still on the start side: separate along the current closest-point direction
+            # (follows the geometry around edges and corners); crossed: push back along n0
+            dist = np.sqrt(d2)
+            if dist > 1e-12 and dx * n0 + dy * n1 + dz * n2 > 0.0:
+                n0, n1, n2 = dx / dist, dy / dist, dz / dist
+        gap = dx * n0 + dy * n1 + dz * n2
+        C = gap - target[r]
+        if C >= 0.0:
+            continue
+        den = w[v] + b0 * b0 * w[a] + b1 * b1 * w[b] + b2 * b2 * w[c]
+        if den <= 0.0:
+            continue
+        active += 1
+        dl = -C / den * strength[r]
+        p[v, 0] += w[v] * dl * n0
+        p[v, 1] += w[v] * dl * n1
+        p[v, 2] += w[v] * dl * n2
+        for k, bk in ((a, b0), (b, b1), (c, b2)):
+            p[k, 0] -= w[k] * bk * dl * n0
+            p[k, 1] -= w[k] * bk * dl * n1
+            p[k, 2] -= w[k] * bk * dl * n2
+        # friction: relative tangential displacement over the substep
+        m = mu[r]
+        if m > 0.0 or damping > 0.0:
+            rx = (p[v, 0] - x[v, 0]) - (b0 * (p[a, 0] - x[a, 0]) + b1 * (p[b, 0] - x[b, 0])
+                                        + b2 * (p[c, 0] - x[c, 0]))
+            ry = (p[v, 1] - x[v, 1]) - (b0 * (p[a, 1] - x[a, 1]) + b1 * (p[b, 1] - x[b, 1])
+                                        + b2 * (p[c, 1] - x[c, 1]))
+            rz = (p[v, 2] - x[v, 2]) - (b0 * (p[a, 2] - x[a, 2]) + b1 * (p[b, 2] - x[b, 2])
+                                        + b2 * (p[c, 2] - x[c, 2]))
+            rn = rx * n0 + ry * n1 + rz * n2
+            tx, ty, tz = rx - rn * n0, ry - rn * n1, rz - rn * n2
+            tl = np.sqrt(tx * tx + ty * ty + tz * tz)
+            if tl > 1e-300:
+                f = min(1.0, m * (-C) / tl + damping)
+                s = f / den
+                p[v, 0] -= w[v] * s * tx
+                p[v, 1] -= w[v] * s * ty
+                p[v, 2] -= w[v] * s * tz
+                for k, bk in ((a, b0), (b, b1), (c, b2)):
+                    p[k, 0] += w[k] * bk * s * tx
+                    p[k, 1] += w[k] * bk * s * ty
+                    p[k, 2] += w[k] * bk * s * tz
+    return active
+
+
+@njit(cache=True)
+def project_ee(p, x, w, rows, nrm, target, mu, strength, damping):
+    """Gauss-Seidel over edge-edge contacts: n . (x_a(s) - x_b(t)) >= target, with friction."""
+    active = 0
+    for r in range(rows.shape[0]):
+        a0, a1, b0, b1 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+        d2, s, t = _seg_seg_sq(p[a0, 0], p[a0, 1], p[a0, 2], p[a1, 0], p[a1, 1], p[a1, 2],
+                               p[b0, 0], p[b0, 1], p[b0, 2], p[b1, 0], p[b1, 1], p[b1, 2])
+        n = nrm[r].copy()
+        ca, cb, cc, cd = 1.0 - s, s, -(1.0 - t), -t
+        dv = np.zeros(3)
+        for k in range(3):
+            dv[k] = ca * p[a0, k] + cb * p[a1, k] + cc * p[b0, k] + cd * p[b1, k]
+        dist = np.sqrt(d2)
+        if dist > 1e-12 and dv[0] * n[0] + dv[1] * n[1] + dv[2] * n[2] > 0.0:
+            n = dv / dist  # same side as at the start: follow the current geometry
+        g = dv[0] * n[0] + dv[1] * n[1] + dv[2] * n[2]
+        C = g - target[r]
+        if C >= 0.0:
+            continue
+        den = ca * ca * w[a0] + cb * cb * w[a1] + cc * cc * w[b0] + cd * cd * w[b1]
+        if den <= 0.0:
+            continue
+        active += 1
+        dl = -C / den * strength[r]
+        for vtx, cf in ((a0, ca), (a1, cb), (b0, cc), (b1, cd)):
+            for k in range(3):
+                p[vtx, k] += w[vtx] * cf * dl * n[k]
+        m = mu[r]
+        if m > 0.0 or damping > 0.0:
+            rel = np.zeros(3)
+            for vtx, cf in ((a0, ca), (a1, cb), (b0, cc), (b1, cd)):
+                for k in range(3):
+                    rel[k] += cf * (p[vtx, k] - x[vtx, k])
+            rn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]
+            tv = rel - rn * n
+            tl = np.sqrt(tv[0] ** 2 + tv[1] ** 2 + tv[2] ** 2)
+            if tl > 1e-300:
+                f = min(1.0, m * (-C) / tl + damping)
+                sc = f / den
+                for vtx, cf in ((a0, ca), (a1, cb), (b0, cc), (b1, cd)):
+                    for k in range(3):
+                        p[vtx, k] -= w[vtx] * cf * sc * tv[k]
+    return active
+
+
+class CollisionParams(ConstraintParams):
+    final_rounds: int = Field(2, ge=0, description="Final collision rounds (re-detection over "
+                                                   "the solved motion, then contacts only).")
+    final_iterations: int = Field(4, ge=1, description="Contact passes per final round.")
+
+
+class CollisionConstraint(ConstraintBehavior):
+    """Contacts of every collision group as unilateral constraints in the Nucleus loop."""
+
+    ParamsModel = CollisionParams
+    requires = (CollisionGroup,)
+    reads = ("contacts",)
+    default_importance = 0.5
+    default_order = 50
+
+    def bind(self, ctx, elements):
+        return _Ref()
+
+    def begin_substep(self, ctx, d):
+        pass
+
+    def project(self, ctx, d, p):
+        c = ctx.state.fields["contacts"]
+        w = ctx.model.particle_inv_mass
+        x = ctx.state.particle_q
+        a = 0
+        if len(c.vf):
+            a += project_vf(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength, c.damping,
+                            c.vf_onesided)
+        if len(c.ee):
+            a += project_ee(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
+                            c.damping)
+        ctx.stats["max_active_contacts"] = max(ctx.stats.get("max_active_contacts", 0), a)
+
+    def finalize(self, ctx, d, p):
+        """Final collision pass (Nucleus: collisions resolved until none is left or a maximum
+        number of iterations): candidates are found again over the motion the solver actually
+        produced, x -> p, and only contacts are projected, up to ``final_rounds`` rounds."""
+        c = ctx.state.fields["contacts"]
+        w = ctx.model.particle_inv_mass
+        x = ctx.state.particle_q
+        for _ in range(self.params.final_rounds):
+            vf_all, ee_all = [], []
+            for g in c.groups:
+                infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
+                vf, ee, _t = _detect_group(g, x, p, infl, ctx.state.particle_qd, ctx.dt)
+                vf_all.append(vf)
+                ee_all.append(ee)
+            _pack(c, vf_all, ee_all)
+            active = 0
+            for _it in range(self.params.final_iterations):
+                a = 0
+                if len(c.vf):
+                    a += project_vf(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
+                                    c.damping, c.vf_onesided)
+                if len(c.ee):
+                    a += project_ee(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
+                                    c.damping)
+                active = a
+                if a == 0:
+                    break
+            if active == 0:
+                break
+        ctx.stats["max_final_active"] = max(ctx.stats.get("max_final_active", 0), active)
+
+
+@dataclass
+class _Ref:
+    lam: None = None
+
+
+class PenetrationCheck(Behavior):
+    """Independent intersection check at the end of every frame: counts intersecting triangle
+    pairs (and hair segment-triangle pairs) between and within the members of every collision
+    group; ``run.json`` records the count per frame."""
+
+    stage = "diagnostics"
+    requires = (CollisionGroup,)
+
+    def bind(self, ctx, elements):
+        tris, segs = [], []
+        for e in elements:
+            for x in _members(ctx, e, e.get(CollisionGroup)):
+                if x.geometry is None:
+                    continue
+                if len(x.geometry.triangles):
+                    tris.append(x.geometry.triangles + x.vertex_offset)
+                elif len(x.geometry.edges):
+                    segs.append(x.geometry.edges + x.vertex_offset)
+        F = np.unique(np.concatenate(tris), axis=0) if tris else np.zeros((0, 3), np.int64)
+        E = np.unique(np.concatenate(segs), axis=0) if segs else None
+        return (F, E)
+
+    def frame_end(self, ctx, data):
+        from .intersect import find_intersections
+
+        F, E = data
+        if not len(F):
+            return
+        rep = find_intersections(ctx.state.particle_q, F, E, touching=False)
+        ctx.stats["penetrations"] = rep.count
