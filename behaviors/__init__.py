@@ -7,6 +7,7 @@ from .materials import (AttachmentConstraint, BendConstraint, GoalConstraint,
                         PressureConstraint, PressureForce, RigidConstraint, ShearConstraint,
                         StitchConstraint, StretchConstraint, TetherConstraint,
                         TetVolumeConstraint)
+from .fluid import FluidCoupling
 from .nucleus import NucleusSolver
 from .shapes import ShapeCollisionConstraint
 
@@ -14,6 +15,6 @@ BUILTIN_BEHAVIORS = [WindField, AirDrag, Gravity, RestSpringForce, PressureForce
                      StretchConstraint, TetherConstraint, ShearConstraint, BendConstraint, TetVolumeConstraint,
                      GoalConstraint, AttachmentConstraint, StitchConstraint, PressureConstraint,
                      RigidConstraint, ShapeCollisionConstraint, CollisionDetect, CollisionConstraint,
-                     PenetrationCheck, NucleusSolver]
+                     PenetrationCheck, FluidCoupling, NucleusSolver]
 
 __all__ = ["BUILTIN_BEHAVIORS"] + [c.__name__ for c in BUILTIN_BEHAVIORS]

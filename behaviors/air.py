@@ -31,19 +31,18 @@ class WindField(Behavior):
 
     stage = "forces"
     requires = (Wind,)
-    writes = ("air_velocity",)
+    accumulates = ("air_velocity",)
 
     def bind(self, ctx, elements):
         return _Wind([e.get(Wind) for e in elements])
 
     def init_state(self, model, state, data):
-        state.fields["air_velocity"] = np.zeros((model.particle_count, 3))
+        state.accumulator("air_velocity", (model.particle_count, 3))
         state.fields["_wind_tmp"] = np.zeros((model.particle_count, 3))
 
     def step(self, ctx, data):
         u = ctx.state.fields["air_velocity"]
         tmp = ctx.state.fields["_wind_tmp"]
-        u[:] = 0.0
         t = ctx.time
         frame = ctx.model.fps * t + ctx.frame  # approximate key time (frames)
         for w in data.winds:  # loop over wind elements, not vertices

@@ -161,6 +161,10 @@ class Schedule:
             if not items:
                 continue
             lines.append(f"stage {s}:")
+            # constraint types in the order the solver interleaves them, then the rest
+            items = sorted(items, key=lambda b: (
+                0 if isinstance(b.behavior, ConstraintBehavior) else 1,
+                b.behavior.params.order if isinstance(b.behavior, ConstraintBehavior) else 0))
             for b in items:
                 els = ", ".join(e.name for e in b.elements) or "(all)"
                 extra = ""
