@@ -52,7 +52,7 @@ class Packed:
     beta: np.ndarray | None = None  # stretch damping
 
     @classmethod
-    def build(cls, idx, rest, alpha, alpha2=None, beta=None, sequential=True):
+    def build(cls, idx, rest, alpha, alpha2=None, beta=None, sequential=False):
         idx = np.ascontiguousarray(idx, dtype=np.int64)
         perm, ptr = T.color_constraints(idx, vertex_count=int(idx.max()) + 1 if len(idx) else 0)
         a2 = alpha2 if alpha2 is not None else np.zeros(len(idx))

@@ -69,10 +69,12 @@ def bench_setting(path, setting: dict, frames: int, reference: np.ndarray | None
     sim.step_frame()
     warm = time.perf_counter() - t0
     times = []
+    pen = 0.0
     for _ in range(frames - 1):
         t = time.perf_counter()
-        sim.step_frame()
+        st = sim.step_frame()
         times.append(time.perf_counter() - t)
+        pen = max(pen, st.get("penetrations", 0.0))
     q = sim.state.particle_q
     m = compiled.model.particle_mass
     row = dict(setting)
@@ -84,6 +86,7 @@ def bench_setting(path, setting: dict, frames: int, reference: np.ndarray | None
         "max_strain": max_strain(compiled, q),
         "kinetic_energy": float(0.5 * (m * (sim.state.particle_qd ** 2).sum(1)).sum()),
         "finite": bool(np.isfinite(q).all()),
+        "max_penetrations": pen,
     })
     if reference is not None:
         row["position_error"] = float(np.abs(q - reference).max())
