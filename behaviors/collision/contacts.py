@@ -315,6 +315,25 @@ def _tri_normal(x, a, b, c):
 
 
 @njit(cache=True)
+def _min_bary(p, a, b, c):
+    """Smallest barycentric coordinate of p projected onto the plane of triangle abc."""
+    v0 = b - a
+    v1 = c - a
+    v2 = p - a
+    d00 = v0[0] * v0[0] + v0[1] * v0[1] + v0[2] * v0[2]
+    d01 = v0[0] * v1[0] + v0[1] * v1[1] + v0[2] * v1[2]
+    d11 = v1[0] * v1[0] + v1[1] * v1[1] + v1[2] * v1[2]
+    d20 = v2[0] * v0[0] + v2[1] * v0[1] + v2[2] * v0[2]
+    d21 = v2[0] * v1[0] + v2[1] * v1[1] + v2[2] * v1[2]
+    den = d00 * d11 - d01 * d01
+    if den <= 0.0:
+        return -1.0
+    bb = (d11 * d20 - d01 * d21) / den
+    cc = (d00 * d21 - d01 * d20) / den
+    return min(1.0 - bb - cc, bb, cc)
+
+
+@njit(cache=True)
 def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, th_in, fric,
                visible, setmask, one_sided, x, v, h, restitution, margin, rows, nrm, tgt, mu,
                one):
@@ -343,6 +362,12 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
         if one_sided[et]:
             if area2 == 0.0:
                 continue
+            # the plane test is only meaningful where the vertex projects onto the triangle
+            # (a vertex above a sphere is "behind" the planes of the equator triangles)
+            if _min_bary(x[p], x[a], x[b], x[c]) < -0.05:
+                continue
+            if side < -(th_out[p] + th_in[a] + margin):
+                continue  # deep inside a one-sided body: let it through
             n = tn
             gap0 = side  # signed: negative = inside
             th = th_out[p] + (th_out[a] * b0 + th_out[b] * b1 + th_out[c] * b2)
@@ -580,6 +605,7 @@ class CollisionConstraint(ConstraintBehavior):
         c = ctx.state.fields["contacts"]
         w = ctx.model.particle_inv_mass
         x = ctx.state.particle_q
+        active = 0
         for _ in range(self.params.final_rounds):
             vf_all, ee_all = [], []
             for g in c.groups:
