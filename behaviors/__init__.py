@@ -10,11 +10,12 @@ from .materials import (AttachmentConstraint, BendConstraint, GoalConstraint,
 from .fluid import FluidCoupling
 from .nucleus import NucleusSolver
 from .shapes import ShapeCollisionConstraint
+from .strain_limit import StrainLimitConstraint
 
 BUILTIN_BEHAVIORS = [WindField, AirDrag, Gravity, RestSpringForce, PressureForce, KinematicAnimation, HardPins,
                      StretchConstraint, TetherConstraint, ShearConstraint, BendConstraint, TetVolumeConstraint,
                      GoalConstraint, AttachmentConstraint, StitchConstraint, PressureConstraint,
                      RigidConstraint, ShapeCollisionConstraint, CollisionDetect, CollisionConstraint,
-                     PenetrationCheck, FluidCoupling, NucleusSolver]
+                     PenetrationCheck, FluidCoupling, StrainLimitConstraint, NucleusSolver]
 
 __all__ = ["BUILTIN_BEHAVIORS"] + [c.__name__ for c in BUILTIN_BEHAVIORS]

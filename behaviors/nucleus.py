@@ -119,6 +119,9 @@ class NucleusSolver(Behavior):
                     b.project(ctx, d, p)
             for b, d in cons:
                 b.finalize(ctx, d, p)
+            for b, d in cons:
+                if hasattr(b, "after_finalize"):
+                    b.after_finalize(ctx, d, p)
         np.subtract(p, x, out=v)
         v *= 1.0 / h
         x[:] = p

@@ -37,6 +37,9 @@ class DiscreteShell(Component):
                                                        "default: the initial shape.")
     tethers: bool = Field(True, description="Long-range tethers to pinned vertices (inextensible "
                                             "materials only): no sag beyond rest distance.")
+    max_strain: Paintable | None = Field(None, description="Strain limit eps_e [-]: no edge "
+                                         "longer than (1 + eps_e) L0 (Loki constitutive strain "
+                                         "limiting, solved with the contacts). Paintable.")
     max_tether_anchors: int = Field(4, ge=1, description="Tethers per vertex (nearest pins).")
 
 

@@ -615,7 +615,12 @@ class CollisionConstraint(ConstraintBehavior):
                 ee_all.append(ee)
             _pack(c, vf_all, ee_all)
             active = 0
-            for _it in range(self.params.final_iterations):
+            joint = [(b, dd) for b, dd in ctx.constraints if hasattr(b, "project_joint")]
+            n_it = max([self.params.final_iterations]
+                       + [b.joint_iterations() for b, _ in joint])
+            for _it in range(n_it):
+                for b, dd in joint:  # strain limits solved together with the contacts
+                    b.project_joint(ctx, dd, p)
                 a = 0
                 if len(c.vf):
                     a += project_vf(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
@@ -624,7 +629,7 @@ class CollisionConstraint(ConstraintBehavior):
                     a += project_ee(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
                                     c.damping)
                 active = a
-                if a == 0:
+                if a == 0 and all(b.satisfied(ctx, dd, p) for b, dd in joint):
                     break
             if active == 0:
                 break

@@ -1,0 +1,147 @@
+"""Constitutive strain limiting (Loki supplement section 2, eq. 9-10).
+
+Every edge obeys the inequality ``|x_i - x_j| <= (1 + eps_e) L0``. In ``constitutive`` mode it is
+a unilateral constraint type with the same order and importance as the contacts, projected in the
+same Gauss-Seidel passes and in the final collision rounds, so contacts and strain limits agree
+at convergence. ``post`` mode (kept for comparison) runs the classic strain-limiting pass after
+everything else, which can push cloth back into colliders.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numba import njit, prange
+from pydantic import Field
+
+from lokigraph.behavior import ConstraintBehavior, ConstraintParams
+from lokigraph.component import resolve_paintable
+from lokigraph.components.core import Dynamic
+from lokigraph.components.materials import DiscreteShell, Rod
+
+from . import topology as T
+
+
+@njit(cache=True, parallel=True)
+def project_strain_limit(p, w, edges, limit, color_ptr):
+    """Shorten every edge longer than its limit [m] (hard, unilateral). Returns nothing."""
+    for c in range(color_ptr.shape[0] - 1):
+        for j in prange(color_ptr[c], color_ptr[c + 1]):
+            a, b = edges[j, 0], edges[j, 1]
+            ws = w[a] + w[b]
+            if ws <= 0.0:
+                continue
+            dx = p[a, 0] - p[b, 0]
+            dy = p[a, 1] - p[b, 1]
+            dz = p[a, 2] - p[b, 2]
+            ln = np.sqrt(dx * dx + dy * dy + dz * dz)
+            C = ln - limit[j]
+            if C <= 0.0 or ln < 1e-15:
+                continue
+            s = C / (ws * ln)
+            p[a, 0] -= w[a] * s * dx
+            p[a, 1] -= w[a] * s * dy
+            p[a, 2] -= w[a] * s * dz
+            p[b, 0] += w[b] * s * dx
+            p[b, 1] += w[b] * s * dy
+            p[b, 2] += w[b] * s * dz
+
+
+@njit(cache=True)
+def strain_excess(p, edges, limit):
+    """Largest |x_i - x_j| / limit - 1 over the edges (<= 0 when every limit holds)."""
+    worst = -np.inf
+    for j in range(edges.shape[0]):
+        a, b = edges[j, 0], edges[j, 1]
+        d = np.sqrt((p[a, 0] - p[b, 0]) ** 2 + (p[a, 1] - p[b, 1]) ** 2
+                    + (p[a, 2] - p[b, 2]) ** 2)
+        worst = max(worst, d / limit[j] - 1.0)
+    return worst
+
+
+class StrainLimitParams(ConstraintParams):
+    mode: Literal["constitutive", "post"] = Field(
+        "constitutive", description="'constitutive': solved together with the contacts; "
+        "'post': a strain-limiting pass after the solve (for comparison).")
+    post_iterations: int = Field(10, ge=1, description="Passes of the post mode.")
+    joint_iterations: int = Field(40, ge=1, description="Most joint contact + strain-limit "
+                                  "passes in the final collision rounds (stops when both hold).")
+    tolerance: float = Field(1e-3, ge=0, description="Accepted relative excess over the limit.")
+
+
+@dataclass
+class _Limits:
+    edges: np.ndarray
+    limit: np.ndarray
+    color_ptr: np.ndarray
+    lam: None = None
+
+
+class StrainLimitConstraint(ConstraintBehavior):
+    """Edges of elements whose material sets ``max_strain`` stay below (1 + eps_e) L0."""
+
+    ParamsModel = StrainLimitParams
+    requires = (Dynamic,)
+    requires_any = (DiscreteShell, Rod)
+    default_importance = 0.5
+    default_order = 51
+
+    def bind(self, ctx, elements):
+        es, lims = [], []
+        for e in elements:
+            c = e.get(DiscreteShell) or e.get(Rod)
+            if c.max_strain is None:
+                continue
+            g = e.geometry
+            edges = T.triangle_edges(g.triangles) if len(g.triangles) else g.edges
+            if not len(edges):
+                continue
+            eps = resolve_paintable(c.max_strain, e, f"{type(c).__name__}.max_strain")
+            if np.any(eps < 0):
+                ctx.error(e, f"{type(c).__name__}.max_strain", "must be >= 0")
+                continue
+            X = ctx.model.particle_rest[e.vertex_slice]
+            L0 = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
+            L0 = L0 * getattr(c, "rest_length_scale", 1.0)
+            eps_e = 0.5 * (eps[edges[:, 0]] + eps[edges[:, 1]])
+            es.append(edges + e.vertex_offset)
+            lims.append((1.0 + eps_e) * L0)
+        if not es:
+            return None
+        edges = np.concatenate(es).astype(np.int64)
+        limit = np.concatenate(lims)
+        perm, ptr = T.color_constraints(edges, vertex_count=ctx.model.particle_count)
+        return _Limits(np.ascontiguousarray(edges[perm]), np.ascontiguousarray(limit[perm]), ptr)
+
+    def begin_substep(self, ctx, d):
+        pass
+
+    def project(self, ctx, d, p):
+        if self.params.mode == "constitutive":
+            project_strain_limit(p, ctx.model.particle_inv_mass, d.edges, d.limit, d.color_ptr)
+
+    def project_joint(self, ctx, d, p):
+        """Called by the final collision rounds (constitutive mode only)."""
+        if self.params.mode == "constitutive":
+            project_strain_limit(p, ctx.model.particle_inv_mass, d.edges, d.limit, d.color_ptr)
+
+    def joint_iterations(self) -> int:
+        return self.params.joint_iterations if self.params.mode == "constitutive" else 0
+
+    def satisfied(self, ctx, d, p) -> bool:
+        return self.params.mode != "constitutive" or strain_excess(
+            p, d.edges, d.limit) <= self.params.tolerance
+
+    def after_finalize(self, ctx, d, p):
+        if self.params.mode == "post":
+            for _ in range(self.params.post_iterations):
+                project_strain_limit(p, ctx.model.particle_inv_mass, d.edges, d.limit,
+                                     d.color_ptr)
+
+    def residual(self, ctx, d, p):
+        return float(max(strain_excess(p, d.edges, d.limit), 0.0))
+
+    def describe(self, d):
+        return f"{len(d.edges)} edges ({self.params.mode})" if d is not None else ""
