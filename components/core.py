@@ -70,7 +70,23 @@ class Kinematic(Component):
     particle_role: ClassVar[str] = "kinematic"
     needs_geometry: ClassVar[bool] = True
 
+    def compliant_stiffness(self, element) -> np.ndarray:
+        """Per-vertex spring stiffness [N/m] of compliant vertices (0 = not compliant)."""
+        k = resolve_paintable(self.stiffness, element, "Kinematic.stiffness")
+        if not np.any(k):
+            return np.zeros(element.vertex_count)
+        meas = vertex_measure(element.geometry)
+        if not np.any(meas):
+            meas = np.ones(element.vertex_count)
+        return k * meas
+
     keys: list[Key] = Field(default_factory=list, description="Rigid keyframes, sorted by frame.")
+    stiffness: Paintable = Field(0.0, description="Compliant kinematics (Loki): stiffness per "
+                                 "unit area [N/m^3] pulling a vertex to its animated position "
+                                 "(rho / h^2 with the 1/h^2 folded in, so it does not change "
+                                 "with substeps). Vertices with stiffness > 0 become momentum-free "
+                                 "unknowns that only contacts can push; 0 = follows the "
+                                 "animation exactly. Paintable.")
 
     @field_validator("keys")
     @classmethod

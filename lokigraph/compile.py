@@ -397,7 +397,7 @@ def compile_scene(scene: Scene) -> Compiled:
 def build_model(scene: Scene) -> Model:
     """Global vertex numbering, masses (from components with a ``particle_role``)."""
     offset = 0
-    qs, rest, qd, mass, kin, elem = [], [], [], [], [], []
+    qs, rest, qd, mass, kin, elem, comp_k = [], [], [], [], [], [], []
     diags = []
     for el in scene.elements:
         if el.geometry is None:
@@ -406,7 +406,13 @@ def build_model(scene: Scene) -> Model:
         n = el.vertex_count
         offset += n
         role, m, v0 = "kinematic", np.zeros(n), np.zeros((n, 3))
+        kc = np.zeros(n)
         for comp in el.components.values():
+            if hasattr(comp, "compliant_stiffness"):
+                try:
+                    kc = comp.compliant_stiffness(el)
+                except InputError as exc:
+                    diags.extend(exc.diagnostics)
             r = getattr(type(comp), "particle_role", None)
             if r == "dynamic":
                 role = "dynamic"
@@ -424,6 +430,7 @@ def build_model(scene: Scene) -> Model:
         mass.append(m)
         kin.append(np.full(n, role == "kinematic"))
         elem.append(np.full(n, el.index, dtype=np.int64))
+        comp_k.append(kc if role == "kinematic" else np.zeros(n))
         if role == "dynamic" and n and np.any(m <= 0):
             bad = int(np.argmax(m <= 0))
             diags.append(Diagnostic(file=el.source_file, line=el.line, column=el.column,
@@ -438,9 +445,15 @@ def build_model(scene: Scene) -> Model:
     m = cat(mass, (0,)).astype(np.float64)
     k = cat(kin, (0,)).astype(bool)
     inv = np.where((m > 0) & ~k, 1.0 / np.where(m > 0, m, 1.0), 0.0)
+    # compliant kinematics: the energy (K/2)|x_goal - x|^2 is an inertia term with mass K h^2
+    # around the animated position (Loki supplement eq. 3-4)
+    kc = cat(comp_k, (0,)).astype(np.float64)
+    h = 1.0 / (scene.spec.frames.fps * scene.spec.substeps)
+    compliant = k & (kc > 0)
+    inv[compliant] = 1.0 / (kc[compliant] * h * h)
     return Model(particle_count=len(q0), particle_q0=q0, particle_rest=cat(rest, (0, 3)).copy(),
                  particle_qd0=cat(qd, (0, 3)).astype(np.float64), particle_mass=m,
-                 particle_inv_mass=inv, particle_kinematic=k,
+                 particle_inv_mass=inv, particle_kinematic=k, particle_compliant=compliant,
                  particle_element=cat(elem, (0,)).astype(np.int64), elements=scene.elements,
                  gravity=np.asarray(scene.spec.gravity, dtype=np.float64),
                  fps=scene.spec.frames.fps, substeps=scene.spec.substeps, seed=scene.spec.seed)

@@ -28,6 +28,8 @@ class Model:
     particle_inv_mass: np.ndarray
     #: True for vertices driven by animation (kinematic elements), shape (particle_count,)
     particle_kinematic: np.ndarray
+    #: compliant kinematic vertices (animated, but pushed by contacts), shape (particle_count,)
+    particle_compliant: np.ndarray
     #: per-vertex element index, shape (particle_count,)
     particle_element: np.ndarray
     elements: list

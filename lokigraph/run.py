@@ -44,7 +44,7 @@ def output_elements(compiled: Compiled) -> list:
         if el.geometry is None or el.vertex_count == 0:
             continue
         sl = el.vertex_slice
-        dynamic = not m.particle_kinematic[sl].all()
+        dynamic = not m.particle_kinematic[sl].all() or m.particle_compliant[sl].any()
         if dynamic or any(getattr(type(c), "write_output", False) for c in el.components.values()):
             out.append(el)
     return out
@@ -73,7 +73,9 @@ class Simulation:
         for b in self._steps:
             b.behavior.init_state(self.model, self.state, b.data)
         self._constraints = [(b.behavior, b.data) for b in self.schedule.constraints]
-        self._kinematic = np.flatnonzero(self.model.particle_kinematic)
+        # compliant vertices keep their deformed position (the output shows the receded surface)
+        self._kinematic = np.flatnonzero(self.model.particle_kinematic
+                                         & ~self.model.particle_compliant)
         self.frame = compiled.scene.spec.frames.start
         self.substep_index = 0
 
