@@ -63,6 +63,8 @@ class Rod(Component):
     tethers: bool = Field(True, description="Long-range tethers to pinned vertices (inextensible "
                                             "only).")
     max_tether_anchors: int = Field(2, ge=1, description="Tethers per vertex (nearest pins).")
+    max_strain: Paintable | None = Field(None, description="Strain limit eps_e [-] of every "
+                                         "segment (constitutive, solved with contacts).")
 
 
 class Volume(Component):
