@@ -724,6 +724,26 @@ class _Tethers:
     lam: None = None
 
 
+def _flat_convex(X, tris) -> bool:
+    """True if the rest mesh is planar and covers its own convex hull (within 1e-9)."""
+    c = X.mean(0)
+    _, sv, vt = np.linalg.svd(X - c, full_matrices=False)
+    scale = max(float(np.ptp(X, axis=0).max()), 1e-300)
+    if sv.size < 3 or sv[2] > 1e-9 * scale * np.sqrt(len(X)):
+        return False
+    uv = (X - c) @ vt[:2].T
+    try:
+        from scipy.spatial import ConvexHull
+
+        hull_area = ConvexHull(uv).volume
+    except Exception:  # noqa: BLE001 - degenerate (collinear) panels: not a flat panel
+        return False
+    P = uv[tris]
+    area = 0.5 * np.abs((P[:, 1, 0] - P[:, 0, 0]) * (P[:, 2, 1] - P[:, 0, 1])
+                        - (P[:, 1, 1] - P[:, 0, 1]) * (P[:, 2, 0] - P[:, 0, 0])).sum()
+    return abs(area - hull_area) <= 1e-9 * max(hull_area, 1e-300)
+
+
 def tether_lengths(X, tris, edges, sources):
     """Rest geodesic distance from each source vertex to every vertex (Dijkstra over the mesh
     edges plus the diagonals of every pair of adjacent triangles, a tight upper bound of the
@@ -732,6 +752,9 @@ def tether_lengths(X, tris, edges, sources):
     from scipy.sparse.csgraph import dijkstra
 
     n = len(X)
+    if len(tris) and _flat_convex(X, tris):
+        # on a flat convex panel the geodesic is the straight segment: exact tethers
+        return np.linalg.norm(X[None, :, :] - X[np.asarray(sources)][:, None, :], axis=2)
     pairs = [edges]
     if len(tris):
         q = T.bend_quads(tris)

