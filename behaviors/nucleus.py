@@ -35,7 +35,9 @@ from .air_kernels import implicit_drag_update_inv_mass
 
 
 class NucleusParams(Params):
-    iterations: int = Field(10, ge=1, le=10000, description="Constraint iterations per substep.")
+    iterations: int = Field(15, ge=1, le=10000, description="Constraint iterations per substep "
+                            "(default 15: a 64x64 cloth hanging from two corners holds 1 % "
+                            "strain at rest; measured 0.74 %).")
     interleave: bool = Field(True, description="Interleave constraint types across iterations "
                              "(Nucleus Figure 11); false runs each type's passes back to back "
                              "in order (Figure 9), for comparison.")

@@ -181,9 +181,9 @@ def test_example_hair_droops_without_stretch():
 
 
 def test_hanging_64_cloth_stretch(scene_file):
-    """64 x 64 cloth hanging from two corners at the default solver settings (4 substeps x 10
-    iterations), brought to rest by damping: measured max edge strain 1.11 %, 99th percentile
-    0.52 % (the issue asks for 1 %: not quite met at the maximum, which sits at the pins)."""
+    """64 x 64 cloth hanging from two corners at the default solver settings (4 substeps x 15
+    iterations), brought to rest by damping: every edge within 1 % (measured max 0.74 %, 99th
+    percentile 0.35 %; at 10 iterations the max was 1.11 %)."""
     p = scene_file("""
     lokigraph: 1
     frames: {start: 1, end: 97, fps: 24}
@@ -199,5 +199,5 @@ def test_hanging_64_cloth_stretch(scene_file):
     e = c.schedule.find("StretchConstraint")[0].data
     q = sim.state.particle_q
     s = np.linalg.norm(q[e.idx[:, 1]] - q[e.idx[:, 0]], axis=1) / e.rest - 1
-    assert np.percentile(s, 99) < 0.01
-    assert s.max() < 0.015
+    assert np.percentile(s, 99) < 0.005
+    assert s.max() < 0.01
