@@ -209,8 +209,7 @@ def _instantiate(graph: GraphSpec, scene: Scene, diags: list) -> list[tuple[Beha
             diags.append(d)
             continue
         params = dict(node.params)
-        if isinstance(cls.__dict__.get("default_importance"), float) or issubclass(
-                cls, ConstraintBehavior):
+        if issubclass(cls, ConstraintBehavior):
             params.setdefault("importance", cls.default_importance)
             params.setdefault("order", cls.default_order)
         params.update(overrides.get(node.name, {}))

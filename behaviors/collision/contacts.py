@@ -122,7 +122,6 @@ class CollisionDetect(Behavior):
             mem = [x for x in mem if x.geometry is not None]
             if not mem:
                 continue
-            names = [x.name for x in mem]
             idx = {x.name: i for i, x in enumerate(mem)}
             k = len(mem)
             vert_elem = np.full(n, -1, np.int64)
@@ -203,7 +202,6 @@ class CollisionDetect(Behavior):
                 fric, vis, setmask, one_sided, kin, "vertex_face" in g.methods,
                 "edge_edge" in g.methods, g.margin, resp.strength, resp.damping,
                 resp.restitution, resp.friction_scale))
-            del names
         if not groups:
             return None
         return _Contacts(groups, np.zeros((n, 3)))
