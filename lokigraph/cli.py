@@ -11,7 +11,8 @@ import json
 import sys
 import traceback
 
-from .errors import EXIT_INPUT, EXIT_OK, EXIT_UNEXPECTED, InputError, LokigraphError
+from .errors import (EXIT_INPUT, EXIT_OK, EXIT_SIMULATION, EXIT_UNEXPECTED, InputError,
+                     LokigraphError)
 
 
 def _frames(text: str) -> tuple[int, int]:
@@ -52,6 +53,10 @@ def _parser() -> argparse.ArgumentParser:
     bn.add_argument("--frames", type=int, default=24, help="frames per run (first is warm-up)")
     bn.add_argument("--reference", help="KEY=V,... setting of a tight reference run")
     bn.add_argument("--out", default="bench_out", help="folder for bench.csv/json/png")
+
+    stz = sub.add_parser("stress", help="cases built to break the solver; pass/fail each")
+    stz.add_argument("--quick", action="store_true", help="small and short (for CI)")
+    stz.add_argument("--out", help="folder for stress.json")
 
     sc = sub.add_parser("schema", help="JSON schema of components and behavior parameters")
     sc.add_argument("--out", help="write to this file instead of stdout")
@@ -99,6 +104,16 @@ def _dispatch(args) -> int:
         else:
             print(text)
         return EXIT_OK
+    if args.command == "stress":
+        from pathlib import Path
+
+        from .stress import format_rows, run_stress
+
+        rows = run_stress(args.quick, Path(args.out) if args.out else None)
+        print(format_rows(rows))
+        failed = [r for r in rows if not r["passed"]]
+        print(f"{len(rows) - len(failed)}/{len(rows)} cases passed")
+        return EXIT_OK if not failed else EXIT_SIMULATION
     if args.command == "bench":
         from pathlib import Path
 
