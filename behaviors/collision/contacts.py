@@ -17,8 +17,9 @@ let a vertex that starts inside through to the outside. Thickness maps scale the
 vertex on the outer and inner side. Proximity-tolerant mode (Loki): a pair already closer than
 its thickness at the start of the substep only stops approaching (target = start gap).
 
-Limitations: edge-edge contacts involving a one-sided collider are skipped (its vertex-face
-contacts carry it); friction is position based (static/kinetic as one coefficient).
+Limitations: an edge-edge pair with a one-sided collider counts only when it starts on the
+collider's outer side (by its vertex normals); friction is position based (static and kinetic
+as one coefficient).
 """
 
 from __future__ import annotations
@@ -268,6 +269,7 @@ def _detect_group(g, x, x1, infl, v, h):
             tol_count += tc
             vf = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, one[:k], g.strength)
     if g.do_ee and len(g.edges):
+        vn = _vertex_normals(x, g) if g.one_sided.any() else np.zeros((0, 3))
         lo_e, hi_e = bp.primitive_boxes(x, g.edges, x1, infl)
         be = bp.build_bvh(lo_e, hi_e)
         cand = bp.query_self(be, g.edges, out=g.buf_ee)
@@ -279,10 +281,24 @@ def _detect_group(g, x, x1, infl, v, h):
             mu = np.zeros(n)
             k, tc = _filter_ee(cand, g.edges, g.edge_elem, g.allow, g.tolerant, g.th_out,
                                g.friction, g.visible, g.setmask, g.one_sided, x, v, h,
-                               g.restitution, g.margin, rows, nrm, tgt, mu)
+                               g.restitution, g.margin, rows, nrm, tgt, mu, vn)
             tol_count += tc
             ee = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, g.strength)
     return vf, ee, tol_count
+
+
+def _vertex_normals(x, g):
+    """Area-weighted vertex normals [-] of the group's triangles (rows of the global numbering;
+    zero for vertices without triangles)."""
+    n = np.zeros((len(x), 3))
+    if len(g.tris):
+        P = x[g.tris]
+        fn = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+        for k in range(3):
+            np.add.at(n, g.tris[:, k], fn)
+    ln = np.linalg.norm(n, axis=1)
+    n[ln > 0] /= ln[ln > 0][:, None]
+    return n
 
 
 def _pack(d, vf_all, ee_all):
@@ -408,7 +424,7 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
 
 @njit(cache=True)
 def _filter_ee(cand, edges, edge_elem, allow, tolerant, th, fric, visible, setmask, one_sided,
-               x, v, h, restitution, margin, rows, nrm, tgt, mu):
+               x, v, h, restitution, margin, rows, nrm, tgt, mu, vnorm):
     k = 0
     tcount = 0
     for r in range(cand.shape[0]):
@@ -416,7 +432,7 @@ def _filter_ee(cand, edges, edge_elem, allow, tolerant, th, fric, visible, setma
         a0, a1 = edges[i, 0], edges[i, 1]
         b0, b1 = edges[j, 0], edges[j, 1]
         ea, eb = edge_elem[i], edge_elem[j]
-        if not allow[ea, eb] or one_sided[ea] or one_sided[eb]:
+        if not allow[ea, eb] or (one_sided[ea] and one_sided[eb]):
             continue
         if not (visible[a0] and visible[a1] and visible[b0] and visible[b1]):
             continue
@@ -435,6 +451,19 @@ def _filter_ee(cand, edges, edge_elem, allow, tolerant, th, fric, visible, setma
             if ln < 1e-300:
                 continue
             n = n / ln
+        if one_sided[ea] or one_sided[eb]:
+            # against a one-sided mesh: only a pair that starts on its outer side collides
+            # (outer = along the mesh's vertex normals at its closest point)
+            if d0 <= 1e-12:
+                continue
+            if one_sided[eb]:
+                on = (1 - t) * vnorm[b0] + t * vnorm[b1]
+                out = n[0] * on[0] + n[1] * on[1] + n[2] * on[2]
+            else:
+                on = (1 - s) * vnorm[a0] + s * vnorm[a1]
+                out = -(n[0] * on[0] + n[1] * on[1] + n[2] * on[2])
+            if out <= 0.0:
+                continue
         thk = (1 - s) * th[a0] + s * th[a1] + (1 - t) * th[b0] + t * th[b1]
         vr = (1 - s) * v[a0] + s * v[a1] - (1 - t) * v[b0] - t * v[b1]
         vn = vr[0] * n[0] + vr[1] * n[1] + vr[2] * n[2]
