@@ -23,7 +23,9 @@ def test_wheel_installs_and_runs(tmp_path):
     names = zipfile.ZipFile(wheel).namelist()
     for must in ("lokigraph/cli.py", "lokigraph/behaviors/nucleus.py",
                  "lokigraph/components/core.py", "lokigraph/graphs/default.yaml",
-                 "lokigraph/graphs/examples/pinned_particles.yaml"):
+                 "lokigraph/graphs/examples/pinned_particles.yaml",
+                 "lokigraph/graphs/examples/lid_soft.npy",
+                 "lokigraph/behaviors/collision/contacts.py"):
         assert must in names, must
     assert not any(n.startswith(("behaviors/", "components/", "graphs/")) for n in names)
     env_dir = tmp_path / "venv"
