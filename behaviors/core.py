@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
-from lokigraph.behavior import Behavior
+from lokigraph.behavior import Behavior, vertex_indices
 from lokigraph.component import resolve_paintable
-from lokigraph.geometry import rotation_matrix_xyz
+from lokigraph.geometry import MeshReadError, rotation_matrix_xyz
+from lokigraph.scene import _load_geometry
 from lokigraph.components.core import Dynamic, Kinematic, Pins, RestSpring
 
 
@@ -31,8 +33,7 @@ class Gravity(Behavior):
     accumulates = ("particle_f",)
 
     def bind(self, ctx, elements):
-        idx = np.concatenate([np.arange(e.vertex_slice.start, e.vertex_slice.stop)
-                              for e in elements]).astype(np.int64)
+        idx = vertex_indices(elements)
         return _Indexed(idx, ctx.model.particle_mass[idx].copy())
 
     def step(self, ctx, data):
@@ -50,8 +51,7 @@ class RestSpringForce(Behavior):
     accumulates = ("particle_f",)
 
     def bind(self, ctx, elements):
-        idx = np.concatenate([np.arange(e.vertex_slice.start, e.vertex_slice.stop)
-                              for e in elements]).astype(np.int64)
+        idx = vertex_indices(elements)
         k = np.concatenate([resolve_paintable(e.get(RestSpring).stiffness, e,
                                               "RestSpring.stiffness") for e in elements])
         anchor = np.concatenate([
@@ -70,6 +70,12 @@ class _Anim:
     start_frame: float
     fps: float
     cache: dict = field(default_factory=dict)  # sequence frame -> points (file memo, not state)
+
+
+def _sequence_frame(e, frame: int):
+    """Geometry of frame ``frame`` of element ``e``'s mesh sequence (units and transform applied)."""
+    spec = e.spec.model_copy(update={"file": None, "generator": None})
+    return _load_geometry(spec, Path(e.base_dir), frame)
 
 
 class KinematicAnimation(Behavior):
@@ -94,13 +100,9 @@ class KinematicAnimation(Behavior):
             seq = e.sequence
             if seq is not None:
                 # check the sequence exists now, so a typo is an input error, not a crash later
-                from lokigraph.scene import _load_geometry
-                from lokigraph.geometry import MeshReadError
-
                 f0 = ctx.scene.spec.frames.start
                 try:
-                    g = _load_geometry(e.spec.model_copy(update={"file": None, "generator": None}),
-                                       __import__("pathlib").Path(e.base_dir), f0)
+                    g = _sequence_frame(e, f0)
                     if g.vertex_count != e.vertex_count:
                         ctx.error(e, "geometry.sequence", f"frame {f0} has {g.vertex_count} "
                                   f"vertices, the element has {e.vertex_count}")
@@ -112,18 +114,12 @@ class KinematicAnimation(Behavior):
         return _Anim(items, float(ctx.scene.spec.frames.start), ctx.model.fps)
 
     def _sequence_points(self, data, e, frame: int) -> np.ndarray:
-        from pathlib import Path
-
-        from lokigraph.geometry import MeshReadError
-        from lokigraph.scene import _load_geometry
-
         key = (e.name, frame)
         if key not in data.cache:
             if len(data.cache) > 8:
                 data.cache.clear()
-            spec = e.spec.model_copy(update={"file": None, "generator": None})
             try:
-                data.cache[key] = _load_geometry(spec, Path(e.base_dir), frame).points
+                data.cache[key] = _sequence_frame(e, frame).points
             except MeshReadError:
                 data.cache[key] = None  # past the end of the sequence: hold the last pose
         return data.cache[key]

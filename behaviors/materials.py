@@ -10,12 +10,12 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit, prange
 
-from lokigraph.behavior import Behavior, ConstraintBehavior
+from lokigraph.behavior import Behavior, ConstraintBehavior, vertex_indices
 from lokigraph.component import resolve_paintable
 from lokigraph.components.core import Dynamic
 from lokigraph.components.materials import (Attachment, DiscreteShell, Goal, Pressure, Rigid,
                                             Rod, Stitch, Volume)
-from lokigraph.geometry import vertex_measure
+from lokigraph.geometry import triangle_areas, vertex_measure
 
 from . import nucleus_kernels as K
 from . import topology as T
@@ -94,8 +94,7 @@ class StretchConstraint(ConstraintBehavior):
                 topo = T.triangle_topology(g.triangles)
                 edges = topo.edges
                 L = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
-                P = X[g.triangles]
-                area = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+                area = triangle_areas(X, g.triangles)
                 Ae = np.bincount(topo.tri_edges.ravel(), np.repeat(area / 3.0, 3),
                                  minlength=len(edges))
                 if c.youngs_modulus is None:
@@ -153,8 +152,8 @@ class StretchConstraint(ConstraintBehavior):
 
 
 def _compress(a, ratio):
-    with np.errstate(divide="ignore"):
-        return np.where(ratio > 0, a / ratio if ratio > 0 else np.inf, np.inf)
+    """Compression compliance: stretch compliance / ratio; ratio 0 switches compression off."""
+    return a / ratio if ratio > 0 else np.full_like(a, np.inf)
 
 
 # ---------------------------------------------------------------------------------- shear
@@ -183,8 +182,7 @@ class ShearConstraint(ConstraintBehavior):
             X = _rest(ctx, e, c)
             trip = T.triangle_corner_triplets(g.triangles)
             rest = K.rest_angles(X, trip)
-            P = X[g.triangles]
-            area = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+            area = triangle_areas(X, g.triangles)
             # three corners share the triangle's shear energy 1/2 k A gamma^2
             a = 1.0 / (k * np.tile(area, 3) / 3.0)
             parts.append((trip + e.vertex_offset, rest, a))
@@ -670,9 +668,8 @@ class RigidConstraint(ConstraintBehavior):
     default_order = 45
 
     def bind(self, ctx, elements):
-        idx = [np.arange(e.vertex_slice.start, e.vertex_slice.stop) for e in elements]
-        ptr = np.concatenate([[0], np.cumsum([len(i) for i in idx])]).astype(np.int64)
-        allidx = np.concatenate(idx).astype(np.int64)
+        allidx = vertex_indices(elements)
+        ptr = np.concatenate([[0], np.cumsum([e.vertex_count for e in elements])]).astype(np.int64)
         return _Rigid(ptr, allidx, ctx.model.particle_rest[allidx].copy(),
                       np.array([e.get(Rigid).stiffness for e in elements]))
 

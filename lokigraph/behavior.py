@@ -126,6 +126,12 @@ class ConstraintBehavior(Behavior):
         return float("nan")
 
 
+def vertex_indices(elements) -> np.ndarray:
+    """Global vertex indices of ``elements``, concatenated in order, int64."""
+    parts = [np.arange(e.vertex_slice.start, e.vertex_slice.stop) for e in elements]
+    return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
+
+
 @dataclass
 class BindContext:
     """What ``bind`` sees: the model under construction and the scene."""

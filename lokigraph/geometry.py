@@ -76,8 +76,7 @@ class Geometry:
                 out.append(f"{int(rep.sum())} degenerate {name}s with a repeated vertex "
                            f"(first at {name} {i}: {arr[i].tolist()})")
         if len(self.triangles) and not out:
-            p = self.points[self.triangles]
-            area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+            area = triangle_areas(self.points, self.triangles)
             scale = max(float(np.ptp(self.points, axis=0).max()), 1e-300)
             tiny = area <= 1e-14 * scale * scale
             if tiny.any():
@@ -396,6 +395,12 @@ GENERATORS = {"points": points, "grid": grid, "strands": strands, "sphere": icos
               "tet_box": tet_box}
 
 
+def triangle_areas(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
+    """Area of every triangle [m^2], shape (T,)."""
+    P = points[tris]
+    return 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+
+
 def vertex_measure(geo: Geometry, points: np.ndarray | None = None) -> np.ndarray:
     """Lumped per-vertex measure of the highest-dimensional simplices present.
 
@@ -413,9 +418,7 @@ def vertex_measure(geo: Geometry, points: np.ndarray | None = None) -> np.ndarra
         np.add.at(out, t.ravel(), np.repeat(vol / 4.0, 4))
     elif len(geo.triangles):
         t = geo.triangles
-        P = p[t]
-        area = 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
-        np.add.at(out, t.ravel(), np.repeat(area / 3.0, 3))
+        np.add.at(out, t.ravel(), np.repeat(triangle_areas(p, t) / 3.0, 3))
     elif len(geo.edges):
         e = geo.edges
         ln = np.linalg.norm(p[e[:, 1]] - p[e[:, 0]], axis=1)

@@ -205,7 +205,7 @@ class CollisionDetect(Behavior):
                 resp.restitution, resp.friction_scale))
         if not groups:
             return None
-        return _Contacts(groups, np.zeros((n, 3)))
+        return _Contacts(groups, np.zeros((n, 3)), damping=max(g.damping for g in groups))
 
     def init_state(self, model, state, data):
         state.fields["contacts"] = data
@@ -223,17 +223,7 @@ class CollisionDetect(Behavior):
         kin = m.particle_kinematic
         if kin.any():
             x1[kin] = ctx.control.kinematic_q[kin]
-        vf_all, ee_all = [], []
-        tolerant = 0
-        for g in d.groups:  # loop over groups, not primitives
-            # boxes of both sets are inflated, so a pair is found within 2 * infl
-            infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
-            res = _detect_group(g, x, x1, infl, ctx.state.particle_qd, h)
-            vf_all.append(res[0])
-            ee_all.append(res[1])
-            tolerant += res[2]
-        _pack(d, vf_all, ee_all)
-        d.damping = max(g.damping for g in d.groups)
+        tolerant = _detect_all(d, x, x1, st.particle_qd, h)
         d.tolerant_count = tolerant
         ctx.stats["contacts_vf"] = ctx.stats.get("contacts_vf", 0) + len(d.vf)
         ctx.stats["contacts_ee"] = ctx.stats.get("contacts_ee", 0) + len(d.ee)
@@ -299,6 +289,33 @@ def _vertex_normals(x, g):
     ln = np.linalg.norm(n, axis=1)
     n[ln > 0] /= ln[ln > 0][:, None]
     return n
+
+
+def _detect_all(d, x, x1, v, h) -> int:
+    """Detect and pack the contacts of every group for the motion x -> x1; returns the number
+    of proximity-tolerant contacts."""
+    vf_all, ee_all = [], []
+    tolerant = 0
+    for g in d.groups:  # loop over groups, not primitives
+        # boxes of both sets are inflated, so a pair is found within 2 * infl
+        infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
+        vf, ee, t = _detect_group(g, x, x1, infl, v, h)
+        vf_all.append(vf)
+        ee_all.append(ee)
+        tolerant += t
+    _pack(d, vf_all, ee_all)
+    return tolerant
+
+
+def _project_contacts(c, p, x, w) -> int:
+    """One Gauss-Seidel pass over all packed contacts; returns the number of active ones."""
+    a = 0
+    if len(c.vf):
+        a += project_vf(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength, c.damping,
+                        c.vf_onesided)
+    if len(c.ee):
+        a += project_ee(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength, c.damping)
+    return a
 
 
 def _pack(d, vf_all, ee_all):
@@ -615,14 +632,7 @@ class CollisionConstraint(ConstraintBehavior):
     def project(self, ctx, d, p):
         c = ctx.state.fields["contacts"]
         w = ctx.model.particle_inv_mass
-        x = ctx.state.particle_q
-        a = 0
-        if len(c.vf):
-            a += project_vf(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength, c.damping,
-                            c.vf_onesided)
-        if len(c.ee):
-            a += project_ee(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
-                            c.damping)
+        a = _project_contacts(c, p, ctx.state.particle_q, w)
         ctx.stats["max_active_contacts"] = max(ctx.stats.get("max_active_contacts", 0), a)
 
     def finalize(self, ctx, d, p):
@@ -633,30 +643,15 @@ class CollisionConstraint(ConstraintBehavior):
         w = ctx.model.particle_inv_mass
         x = ctx.state.particle_q
         active = 0
+        joint = [(b, dd) for b, dd in ctx.constraints if hasattr(b, "project_joint")]
+        n_it = max([self.params.final_iterations] + [b.joint_iterations() for b, _ in joint])
         for _ in range(self.params.final_rounds):
-            vf_all, ee_all = [], []
-            for g in c.groups:
-                infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
-                vf, ee, _t = _detect_group(g, x, p, infl, ctx.state.particle_qd, ctx.dt)
-                vf_all.append(vf)
-                ee_all.append(ee)
-            _pack(c, vf_all, ee_all)
-            active = 0
-            joint = [(b, dd) for b, dd in ctx.constraints if hasattr(b, "project_joint")]
-            n_it = max([self.params.final_iterations]
-                       + [b.joint_iterations() for b, _ in joint])
+            _detect_all(c, x, p, ctx.state.particle_qd, ctx.dt)
             for _it in range(n_it):
                 for b, dd in joint:  # strain limits solved together with the contacts
                     b.project_joint(ctx, dd, p)
-                a = 0
-                if len(c.vf):
-                    a += project_vf(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
-                                    c.damping, c.vf_onesided)
-                if len(c.ee):
-                    a += project_ee(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
-                                    c.damping)
-                active = a
-                if a == 0 and all(b.satisfied(ctx, dd, p) for b, dd in joint):
+                active = _project_contacts(c, p, x, w)
+                if active == 0 and all(b.satisfied(ctx, dd, p) for b, dd in joint):
                     break
             if active == 0:
                 break
