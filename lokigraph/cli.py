@@ -47,11 +47,19 @@ def _parser() -> argparse.ArgumentParser:
     sub.add_parser("behaviors", help="list registered behaviors and components")
 
     bn = sub.add_parser("bench", help="time per frame and error over a grid of settings")
-    bn.add_argument("scene")
+    bn.add_argument("scene", nargs="?", help="bench scene (not needed with --scaling)")
     bn.add_argument("--sweep", action="append", default=[],
-                    help="KEY=V1,V2,... (substeps, iterations, solver or node.param)")
-    bn.add_argument("--frames", type=int, default=24, help="frames per run (first is warm-up)")
-    bn.add_argument("--reference", help="KEY=V,... setting of a tight reference run")
+                    help="KEY=V1,V2,... (substeps, iterations, solver, graph or node.param)")
+    bn.add_argument("--frames", type=int, help="frames per run, the first is warm-up (default: "
+                    "the scene's frame range)")
+    bn.add_argument("--repeats", type=int, default=1, help="runs per setting (median over all)")
+    bn.add_argument("--reference", help="KEY=V,... setting of a tight reference run (scenes "
+                    "without a reference block)")
+    bn.add_argument("--make-reference", action="store_true", help="compute and store the "
+                    "scene's stored reference at its reference settings")
+    bn.add_argument("--scaling", action="store_true", help="cloth drape 32x32..256x256: time "
+                    "per frame against vertex count, fitted exponent, memory per vertex")
+    bn.add_argument("--sizes", default="32,64,128,256", help="--scaling grid resolutions")
     bn.add_argument("--out", default="bench_out", help="folder for bench.csv/json/png")
 
     stz = sub.add_parser("stress", help="cases built to break the solver; pass/fail each")
@@ -115,24 +123,7 @@ def _dispatch(args) -> int:
         print(f"{len(rows) - len(failed)}/{len(rows)} cases passed")
         return EXIT_OK if not failed else EXIT_SIMULATION
     if args.command == "bench":
-        from pathlib import Path
-
-        from .bench import format_table, run_bench
-
-        sweeps = {}
-        for sw in args.sweep or ["substeps=4"]:
-            k, _, v = sw.partition("=")
-            if not v:
-                raise InputError(f"--sweep {sw!r}: expected KEY=V1,V2")
-            sweeps[k] = v.split(",")
-        ref = None
-        if args.reference:
-            ref = dict(x.split("=") for x in args.reference.split(","))
-        rows = run_bench(args.scene, sweeps, args.frames, Path(args.out), ref)
-        print(format_table(rows))
-        print(f"(results in {args.out}/bench.csv, bench.json, bench.png; pareto = fastest "
-              f"setting for its error level)")
-        return EXIT_OK
+        return _bench(args)
     from .api import compile_file
 
     compiled = compile_file(args.scene)
@@ -182,3 +173,41 @@ def _cmd_behaviors() -> int:
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(main())
+
+
+def _bench(args) -> int:
+    from pathlib import Path
+
+    from .bench import format_table, make_reference, run_bench, run_scaling
+
+    out = Path(args.out)
+    if args.scaling:
+        sizes = [int(x) for x in args.sizes.split(",")]
+        res = run_scaling(out, sizes)
+        print(format_table(res["rows"]))
+        print(f"time per frame ~ vertices^{res['exponent']:.2f} ({res['substeps']} substeps x "
+              f"{res['iterations']} iterations; results in {out}/scaling.json)")
+        return EXIT_OK
+    if not args.scene:
+        raise InputError("bench: give a scene (or --scaling)")
+    try:
+        if args.make_reference:
+            dest = make_reference(args.scene)
+            print(f"wrote {dest}")
+            return EXIT_OK
+        sweeps = {}
+        for sw in args.sweep or ["substeps=4"]:
+            k, _, v = sw.partition("=")
+            if not v:
+                raise InputError(f"--sweep {sw!r}: expected KEY=V1,V2")
+            sweeps[k] = v.split(",")
+        ref = None
+        if args.reference:
+            ref = dict(x.split("=") for x in args.reference.split(","))
+        rows = run_bench(args.scene, sweeps, args.frames, out, ref, args.repeats)
+    except (ValueError, FileNotFoundError) as exc:
+        raise InputError(f"{args.scene}: bench: {exc}") from None
+    print(format_table(rows))
+    print(f"(results in {out}/bench.csv, bench.json, bench.png; pareto = fastest setting for its "
+          f"error level)")
+    return EXIT_OK

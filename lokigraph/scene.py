@@ -95,6 +95,23 @@ class Output(Strict):
     format: Literal["obj", "ply", "vtu"] = "obj"
 
 
+class Reference(Strict):
+    """Independent truth for ``lokigraph bench`` (``run`` ignores it); see lokigraph.references."""
+
+    kind: Literal["free_fall", "spring", "catenary", "elastica", "terminal_velocity", "stored"]
+    element: str | None = Field(None, description="Element compared (default: the only dynamic "
+                                                  "one).")
+    file: str | None = Field(None, description="stored: .npy of positions, next to the scene.")
+    settings: dict = Field(default_factory=dict, description="stored: the tight settings the "
+                           "file was computed with (substeps, iterations, node.param).")
+
+    @model_validator(mode="after")
+    def _file(self):
+        if self.kind == "stored" and not self.file:
+            raise ValueError("kind 'stored' needs 'file'")
+        return self
+
+
 class SceneSpec(Strict):
     lokigraph: Literal[1] = Field(description="Scene format version.")
     graph: str = Field("default", description="Shipped graph name or path to a graph YAML.")
@@ -105,6 +122,8 @@ class SceneSpec(Strict):
     seed: int = Field(0, description="Random seed for any stochastic behavior.")
     elements: list[ElementSpec] = Field(default_factory=list)
     output: Output = Field(default_factory=Output)
+    reference: Reference | None = Field(None, description="Reference solution for `lokigraph "
+                                        "bench` (ignored by run).")
     graph_overrides: dict[str, dict] = Field(
         default_factory=dict, description="Per graph node name: parameter overrides.")
 
