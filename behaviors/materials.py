@@ -38,6 +38,12 @@ def _rest(ctx, e, comp) -> np.ndarray:
     return ctx.model.particle_rest[e.vertex_slice]
 
 
+#: Constraint sets smaller than this run the sequential Gauss-Seidel kernel: below it a coloured
+#: parallel sweep spends more on thread barriers (one per colour) than it saves, and it stalls
+#: badly when the cores are shared (measured by behaviors/bench_kernels.py).
+PARALLEL_MIN_CONSTRAINTS = 8192
+
+
 @dataclass
 class Packed:
     """Coloured constraint rows (global vertex indices) and their parameters."""
@@ -52,8 +58,10 @@ class Packed:
     beta: np.ndarray | None = None  # stretch damping
 
     @classmethod
-    def build(cls, idx, rest, alpha, alpha2=None, beta=None, sequential=False):
+    def build(cls, idx, rest, alpha, alpha2=None, beta=None, sequential=None):
         idx = np.ascontiguousarray(idx, dtype=np.int64)
+        if sequential is None:
+            sequential = len(idx) < PARALLEL_MIN_CONSTRAINTS
         perm, ptr = T.color_constraints(idx, vertex_count=int(idx.max()) + 1 if len(idx) else 0)
         a2 = alpha2 if alpha2 is not None else np.zeros(len(idx))
         return cls(np.ascontiguousarray(idx[perm]), np.ascontiguousarray(rest[perm]),
@@ -390,7 +398,8 @@ class GoalConstraint(ConstraintBehavior):
             d.target[anim] = ctx.control.kinematic_q[d.target_idx[anim]]
 
     def project(self, ctx, d, p):
-        K.project_goal(p, ctx.model.particle_inv_mass, d.idx, d.target, d.alpha, d.lam, ctx.dt)
+        fn = K.project_goal_seq if len(d.idx) < PARALLEL_MIN_CONSTRAINTS else K.project_goal
+        fn(p, ctx.model.particle_inv_mass, d.idx, d.target, d.alpha, d.lam, ctx.dt)
 
     def residual(self, ctx, d, p):
         return float(K.residual_goal(p, d.idx, d.target)[0])
@@ -562,8 +571,9 @@ class StitchConstraint(ConstraintBehavior):
         return None if cat is None else Packed.build(*cat)
 
     def project(self, ctx, d, p):
-        K.project_stretch(p, ctx.model.particle_inv_mass, d.idx, d.rest, d.alpha, d.alpha2,
-                          d.lam, ctx.dt, d.color_ptr)
+        fn = K.project_stretch_seq if d.sequential else K.project_stretch
+        fn(p, ctx.model.particle_inv_mass, d.idx, d.rest, d.alpha, d.alpha2, d.lam, ctx.dt,
+           d.color_ptr)
 
     def residual(self, ctx, d, p):
         return float(K.residual_stretch(p, d.idx, d.rest)[0])

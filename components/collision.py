@@ -52,6 +52,10 @@ class CollisionGroup(Component):
         "auto", description="Primitives already inside each other's thickness at the start of a "
         "step only stop approaching instead of being pushed apart (Loki). 'auto': on for "
         "dynamic-kinematic contacts, off for the rest.")
+    recover_crossings: bool = Field(True, description="A dynamic vertex remembers which side of a "
+        "two-sided kinematic surface it came from; if animation pushes it through (an "
+        "impossible pinch) it is pulled back by at most half its thickness per substep once "
+        "there is room, instead of staying on the wrong side.")
     margin: float = Field(0.002, ge=0, description="Extra distance [m] beyond the contact "
                                                    "distance for candidate pairs.")
 

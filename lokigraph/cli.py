@@ -65,6 +65,7 @@ def _parser() -> argparse.ArgumentParser:
     stz = sub.add_parser("stress", help="cases built to break the solver; pass/fail each")
     stz.add_argument("--quick", action="store_true", help="small and short (for CI)")
     stz.add_argument("--out", help="folder for stress.json")
+    stz.add_argument("--only", help="run only the cases whose name contains this text")
 
     sc = sub.add_parser("schema", help="JSON schema of components and behavior parameters")
     sc.add_argument("--out", help="write to this file instead of stdout")
@@ -117,8 +118,11 @@ def _dispatch(args) -> int:
 
         from .stress import format_rows, run_stress
 
-        rows = run_stress(args.quick, Path(args.out) if args.out else None)
-        print(format_rows(rows))
+        try:
+            rows = run_stress(args.quick, Path(args.out) if args.out else None, args.only,
+                              progress=lambda r: print(format_rows([r]), flush=True))
+        except ValueError as exc:
+            raise InputError(f"stress: {exc}") from None
         failed = [r for r in rows if not r["passed"]]
         print(f"{len(rows) - len(failed)}/{len(rows)} cases passed")
         return EXIT_OK if not failed else EXIT_SIMULATION

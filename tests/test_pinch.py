@@ -17,7 +17,8 @@ def _pinch(tmp_path, mechanisms=True, substeps=4, frames=60):
     if not mechanisms:
         text = text.replace("        stiffness: soft", "        # stiffness: soft")
         text = text.replace("methods: [vertex_face, edge_edge]}",
-                            'methods: [vertex_face, edge_edge], proximity_tolerant: "off"}')
+                            'methods: [vertex_face, edge_edge], proximity_tolerant: "off", '
+                            'recover_crossings: false}')
     p = tmp_path / f"pinch_{mechanisms}_{substeps}.yaml"
     p.write_text(text)
     c = compile_file(p)
@@ -89,7 +90,8 @@ def test_sleeve_pinch_example(tmp_path, mechanisms):
     if not mechanisms:
         text = text.replace("        stiffness: soft\n", "").replace(
             "methods: [vertex_face, edge_edge]}",
-            'methods: [vertex_face, edge_edge], proximity_tolerant: "off"}')
+            'methods: [vertex_face, edge_edge], proximity_tolerant: "off", '
+            'recover_crossings: false}')
     p = tmp_path / "sleeve.yaml"
     p.write_text(text)
     c = compile_file(p)

@@ -39,6 +39,9 @@ from . import broadphase as bp
 from .narrowphase import _pt_tri_sq, _seg_seg_sq
 
 _TOL = 1e-12
+#: detection passes a vertex remembers which side of a kinematic sheet it came from after it
+#: was last near it (pushed-through cloth may be out of the contact band for a while)
+SIDE_MEMORY = 48
 
 
 @dataclass
@@ -66,6 +69,13 @@ class _Group:
     damping: float
     restitution: float
     friction_scale: float
+    # which side of each two-sided kinematic element a dynamic vertex came from (+1/-1, 0 =
+    # unknown) and the detection pass that last saw the pair: history to recover crossings
+    recover: np.ndarray = None  # per element bool: remember sides of this kinematic element
+    side_mem: np.ndarray = None  # (n_vertices, n_el) int8
+    side_seen: np.ndarray = None  # (n_vertices, n_el) int64
+    crossed: np.ndarray = None  # (n_vertices, n_el) int64: pass in which the vertex was crossed
+    stamp: int = 1
     buf_vf: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
     buf_ee: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
 
@@ -115,7 +125,7 @@ class CollisionDetect(Behavior):
     def bind(self, ctx, elements):
         m = ctx.model
         n = m.particle_count
-        groups = []
+        groups, specs = [], []
         for e in elements:
             g = e.get(CollisionGroup)
             resp = e.get(CollisionResponse) or CollisionResponse()
@@ -197,6 +207,7 @@ class CollisionDetect(Behavior):
                     allow[idx[a], idx[b]] = allow[idx[b], idx[a]] = False
             cat = lambda xs, s: np.concatenate(xs).astype(np.int64) if xs else np.zeros(  # noqa
                 s, np.int64)
+            specs.append(g)
             groups.append(_Group(
                 e.name, cat(verts, (0,)), cat(tris, (0, 3)), cat(edges, (0, 2)),
                 cat(tri_el, (0,)), cat(edge_el, (0,)), vert_elem, allow, tol, th_out, th_in,
@@ -205,6 +216,11 @@ class CollisionDetect(Behavior):
                 resp.restitution, resp.friction_scale))
         if not groups:
             return None
+        for g, spec in zip(groups, specs):
+            g.recover = g.kinematic_el & spec.recover_crossings
+            g.side_mem = np.zeros((n, len(g.one_sided)), np.int8)
+            g.side_seen = np.full((n, len(g.one_sided)), -(1 << 40), np.int64)
+            g.crossed = np.full((n, len(g.one_sided)), -(1 << 40), np.int64)
         return _Contacts(groups, np.zeros((n, 3)), damping=max(g.damping for g in groups))
 
     def init_state(self, model, state, data):
@@ -252,10 +268,12 @@ def _detect_group(g, x, x1, infl, v, h):
             tgt = np.zeros(n)
             mu = np.zeros(n)
             one = np.zeros(n, np.bool_)
+            g.stamp += 1
             k, tc = _filter_vf(cand, g.verts, g.tris, g.tri_elem, g.vert_elem, g.allow,
                                g.tolerant, g.th_out, g.th_in, g.friction, g.visible, g.setmask,
                                g.one_sided, x, v, h, g.restitution, g.margin, rows, nrm, tgt,
-                               mu, one)
+                               mu, one, g.recover, g.side_mem, g.side_seen, g.crossed,
+                               g.stamp)
             tol_count += tc
             vf = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, one[:k], g.strength)
     if g.do_ee and len(g.edges):
@@ -271,7 +289,8 @@ def _detect_group(g, x, x1, infl, v, h):
             mu = np.zeros(n)
             k, tc = _filter_ee(cand, g.edges, g.edge_elem, g.allow, g.tolerant, g.th_out,
                                g.friction, g.visible, g.setmask, g.one_sided, x, v, h,
-                               g.restitution, g.margin, rows, nrm, tgt, mu, vn)
+                               g.restitution, g.margin, rows, nrm, tgt, mu, vn, g.crossed,
+                               g.stamp)
             tol_count += tc
             ee = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, g.strength)
     return vf, ee, tol_count
@@ -299,6 +318,12 @@ def _detect_all(d, x, x1, v, h) -> int:
     for g in d.groups:  # loop over groups, not primitives
         # boxes of both sets are inflated, so a pair is found within 2 * infl
         infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
+        # vertices recently pushed through a kinematic sheet search 4x wider so that the
+        # contact pulling them back is not lost when they are deeper than the contact band
+        recent = (g.crossed >= g.stamp - SIDE_MEMORY).any(axis=1)
+        if recent.any():
+            infl = infl.copy()
+            infl[recent] *= 4.0
         vf, ee, t = _detect_group(g, x, x1, infl, v, h)
         vf_all.append(vf)
         ee_all.append(ee)
@@ -367,8 +392,14 @@ def _min_bary(p, a, b, c):
 @njit(cache=True)
 def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, th_in, fric,
                visible, setmask, one_sided, x, v, h, restitution, margin, rows, nrm, tgt, mu,
-               one):
-    """Keep allowed vertex-triangle candidates; record start normal, target gap, friction."""
+               one, kin_el, side_mem, side_seen, crossed_at, stamp):
+    """Keep allowed vertex-triangle candidates; record start normal, target gap, friction.
+
+    A dynamic vertex near a two-sided kinematic element remembers the side it came from (set
+    when the pair is first found, kept while it stays a candidate, forgotten SIDE_MEMORY passes after it was last one).
+    If animation pushed it through (an impossible pinch), the contact points back to the
+    remembered side and pulls it back by at most half its thickness per substep, so the cloth
+    returns once the gap reopens instead of staying on the wrong side."""
     k = 0
     tcount = 0
     for r in range(cand.shape[0]):
@@ -379,6 +410,9 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
         et = tri_elem[t]
         if not allow[ep, et]:
             continue
+        if kin_el[ep] and (crossed_at[a, ep] >= stamp - 1 or crossed_at[b, ep] >= stamp - 1
+                           or crossed_at[c, ep] >= stamp - 1):
+            continue  # a sheet vertex against cloth pushed through it: would hold it there
         if not (visible[p] and visible[a] and visible[b] and visible[c]):
             continue
         if setmask[p] & setmask[a] & setmask[b] & setmask[c]:
@@ -404,14 +438,32 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
             th = th_out[p] + (th_out[a] * b0 + th_out[b] * b1 + th_out[c] * b2)
             onesd = True
         else:
-            if d0 > 1e-12:
+            cur = 1 if side >= 0.0 else -1
+            crossed = False
+            # the side is only meaningful where the vertex projects onto the triangle (beside
+            # a box it is "below" the top face's plane and still outside)
+            if kin_el[et] and not kin_el[ep] and area2 > 0.0 \
+                    and _min_bary(x[p], x[a], x[b], x[c]) >= -1e-3:
+                if side_seen[p, et] < stamp - SIDE_MEMORY or side_mem[p, et] == 0:
+                    side_mem[p, et] = cur  # first seen: trust the start
+                side_seen[p, et] = stamp
+                crossed = side_mem[p, et] != cur
+            elif kin_el[et] and crossed_at[p, et] >= stamp - 1:
+                continue  # pushed through this sheet: only the triangles it is under pull back
+            if crossed:
+                crossed_at[p, et] = stamp
+                n = -tn if side >= 0.0 else tn
+                gap0 = -d0
+                side = -side
+            elif d0 > 1e-12:
                 n = diff / d0
+                gap0 = d0
             elif area2 > 0.0:
                 n = tn if side >= 0.0 else -tn
+                gap0 = d0
             else:
                 continue
-            gap0 = d0
-            if side >= 0.0:
+            if side >= 0.0:  # the (remembered) side decides outer or inner thickness
                 th = th_out[p] + (th_out[a] * b0 + th_out[b] * b1 + th_out[c] * b2)
             else:
                 th = th_out[p] + (th_in[a] * b0 + th_in[b] * b1 + th_in[c] * b2)
@@ -425,6 +477,8 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
         if gap0 < th and tolerant[ep, et]:
             target = max(gap0, 0.0) if not onesd else gap0
             tcount += 1
+        if not onesd and gap0 < 0.0:  # crossed: back toward the remembered side, gently
+            target = min(gap0 + 0.5 * th, th)
         rows[k, 0] = p
         rows[k, 1] = a
         rows[k, 2] = b
@@ -441,7 +495,7 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
 
 @njit(cache=True)
 def _filter_ee(cand, edges, edge_elem, allow, tolerant, th, fric, visible, setmask, one_sided,
-               x, v, h, restitution, margin, rows, nrm, tgt, mu, vnorm):
+               x, v, h, restitution, margin, rows, nrm, tgt, mu, vnorm, crossed_at, stamp):
     k = 0
     tcount = 0
     for r in range(cand.shape[0]):
@@ -450,6 +504,11 @@ def _filter_ee(cand, edges, edge_elem, allow, tolerant, th, fric, visible, setma
         b0, b1 = edges[j, 0], edges[j, 1]
         ea, eb = edge_elem[i], edge_elem[j]
         if not allow[ea, eb] or (one_sided[ea] and one_sided[eb]):
+            continue
+        # an edge with an end pushed through a kinematic sheet is pulled back by the
+        # vertex-face contacts; an edge-edge push here would hold it on the wrong side
+        if (crossed_at[a0, eb] >= stamp - 1 or crossed_at[a1, eb] >= stamp - 1
+                or crossed_at[b0, ea] >= stamp - 1 or crossed_at[b1, ea] >= stamp - 1):
             continue
         if not (visible[a0] and visible[a1] and visible[b0] and visible[b1]):
             continue
