@@ -67,13 +67,13 @@ def test_pinch_with_mechanisms_is_calm_and_recovers(tmp_path):
 def test_compliant_recession_independent_of_substeps(tmp_path):
     """The painted stiffness has 1/h^2 folded in: the recession of the compliant lid through the
     pinch is the same at 2 and 8 substeps: frame by frame within 1 mm outside the closure frame
-    (measured <= 0.7 mm), and on average over frames 20-28 within 15 % (measured 3.90 vs
-    4.41 mm). At the closure frame itself, where the gap is zero, it differs more (10.1 vs
-    13.8 mm): reported, not hidden."""
+    (measured <= 0.84 mm), at the closure frame (zero gap) within one cloth thickness, 2 mm
+    (measured 10.9 vs 12.4 mm), and on average over frames 20-28 within 15 %."""
     a = _pinch(tmp_path, True, 2, frames=30)["recede"]
     b = _pinch(tmp_path, True, 8, frames=30)["recede"]
     window = [i for i in range(19, 28) if i != 23]
     assert np.abs(a[window] - b[window]).max() < 1e-3
+    assert abs(a[23] - b[23]) < 2e-3
     assert a[19:28].mean() == pytest.approx(b[19:28].mean(), rel=0.15)
     assert a[23] > 0.006 and b[23] > 0.006
 
