@@ -40,8 +40,10 @@ def _rest(ctx, e, comp) -> np.ndarray:
 
 #: Constraint sets smaller than this run the sequential Gauss-Seidel kernel: below it a coloured
 #: parallel sweep spends more on thread barriers (one per colour) than it saves, and it stalls
-#: badly when the cores are shared (measured by behaviors/bench_kernels.py).
-PARALLEL_MIN_CONSTRAINTS = 8192
+#: badly when other processes share the cores. Measured with behaviors/bench_kernels.py on 2
+#: idle cores: 800 stretch rows 0.6x (parallel slower), 1536 shear rows 1.1x, 3136 stretch rows
+#: 1.2x, 6144 shear rows 1.7x, 24576 shear rows 1.9x.
+PARALLEL_MIN_CONSTRAINTS = 2048
 
 
 @dataclass

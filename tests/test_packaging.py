@@ -25,7 +25,9 @@ def test_wheel_installs_and_runs(tmp_path):
                  "lokigraph/components/core.py", "lokigraph/graphs/default.yaml",
                  "lokigraph/graphs/examples/pinned_particles.yaml",
                  "lokigraph/graphs/examples/lid_soft.npy",
-                 "lokigraph/behaviors/collision/contacts.py"):
+                 "lokigraph/behaviors/collision/contacts.py",
+                 "lokigraph/graphs/bench/catenary.yaml", "lokigraph/graphs/bench/chain.obj",
+                 "lokigraph/graphs/bench/drape_ref.npy"):
         assert must in names, must
     assert not any(n.startswith(("behaviors/", "components/", "graphs/")) for n in names)
     env_dir = tmp_path / "venv"
@@ -54,3 +56,13 @@ def test_wheel_installs_and_runs(tmp_path):
     assert info["status"] == "ok" and len(info["frames"]["written"]) > 1
     r = subprocess.run([str(lg), "behaviors"], capture_output=True, text=True, env=env)
     assert "NucleusSolver" in r.stdout
+    # bench and stress run from the installed package
+    cat = Path(scene).parent.parent / "bench" / "catenary.yaml"
+    r = subprocess.run([str(lg), "bench", str(cat), "--sweep", "substeps=1", "--out",
+                        str(tmp_path / "b")], capture_output=True, text=True, env=env,
+                       cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / "b" / "bench.json").read_text())[0]["position_error"] < 0.1
+    r = subprocess.run([str(lg), "stress", "--quick", "--only", "sliver"], capture_output=True,
+                       text=True, env=env, cwd=tmp_path)
+    assert r.returncode == 0 and "1/1 cases passed" in r.stdout, r.stdout + r.stderr
