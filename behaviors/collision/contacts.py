@@ -396,10 +396,10 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
     """Keep allowed vertex-triangle candidates; record start normal, target gap, friction.
 
     A dynamic vertex near a two-sided kinematic element remembers the side it came from (set
-    when the pair is first found, kept while it stays a candidate, forgotten SIDE_MEMORY passes after it was last one).
-    If animation pushed it through (an impossible pinch), the contact points back to the
-    remembered side and pulls it back by at most half its thickness per substep, so the cloth
-    returns once the gap reopens instead of staying on the wrong side."""
+    when the pair is first found, kept while it stays a candidate, forgotten SIDE_MEMORY passes
+    after it was last one). If animation pushed it through (an impossible pinch), the contact
+    points back to the remembered side and pulls it back by at most half its thickness per
+    substep, so the cloth returns once the gap reopens instead of staying on the wrong side."""
     k = 0
     tcount = 0
     for r in range(cand.shape[0]):
