@@ -124,6 +124,25 @@ def _hot(fn):
     return njit(cache=True, _nrt=False)(fn)
 
 
+@_hot
+def _xpbd_step(c, at, den, lam, j):
+    """XPBD multiplier update of constraint j: dlam = (-C - alpha~ lam) / (sum w |grad C|^2 +
+    alpha~), accumulated into lam[j]; returns dlam."""
+    dl = (-c - at * lam[j]) / (den + at)
+    lam[j] += dl
+    return dl
+
+
+@_hot
+def _nudge(p, i, wi, dl, gx, gy, gz):
+    """p[i] += w_i dlam grad_i C for a movable vertex (w_i > 0)."""
+    if wi > 0.0:
+        f = wi * dl
+        p[i, 0] += f * gx
+        p[i, 1] += f * gy
+        p[i, 2] += f * gz
+
+
 # ==============================================================================================
 # type 1: stretch
 # ==============================================================================================
@@ -215,11 +234,7 @@ def _stretch_damped_one(j, p, x, w, edges, rest, alpha_stretch, alpha_compress, 
             + nz * ((p[a, 2] - x[a, 2]) - (p[b, 2] - x[b, 2])))
     dl = (-c - at * lam[j] - gamma * vrel) / ((1.0 + gamma) * ws + at)
     lam[j] += dl
-    if wa > 0.0:
-        f = wa * dl
-        p[a, 0] += f * nx
-        p[a, 1] += f * ny
-        p[a, 2] += f * nz
+    _nudge(p, a, wa, dl, nx, ny, nz)
     if wb > 0.0:
         f = wb * dl
         p[b, 0] -= f * nx
@@ -314,24 +329,10 @@ def _angle_one(j, p, w, tri, rest, alpha, lam, inv_h2):
            + wo * (gox * gox + goy * goy + goz * goz))
     if den <= 0.0:
         return
-    at = al * inv_h2
-    dl = (-c - at * lam[j]) / (den + at)
-    lam[j] += dl
-    if wo > 0.0:
-        f = wo * dl
-        p[o, 0] += f * gox
-        p[o, 1] += f * goy
-        p[o, 2] += f * goz
-    if wa > 0.0:
-        f = wa * dl
-        p[a, 0] += f * gax
-        p[a, 1] += f * gay
-        p[a, 2] += f * gaz
-    if wb > 0.0:
-        f = wb * dl
-        p[b, 0] += f * gbx
-        p[b, 1] += f * gby
-        p[b, 2] += f * gbz
+    dl = _xpbd_step(c, al * inv_h2, den, lam, j)
+    _nudge(p, o, wo, dl, gox, goy, goz)
+    _nudge(p, a, wa, dl, gax, gay, gaz)
+    _nudge(p, b, wb, dl, gbx, gby, gbz)
 
 
 @njit(cache=True, parallel=True)
@@ -453,29 +454,11 @@ def _dihedral_one(j, p, w, quads, rest, alpha, dropoff, lam, inv_h2):
            + w2 * (g2x * g2x + g2y * g2y + g2z * g2z) + w3 * (g3x * g3x + g3y * g3y + g3z * g3z))
     if den <= 0.0:
         return
-    at = al * inv_h2
-    dl = (-c - at * lam[j]) / (den + at)
-    lam[j] += dl
-    if w0 > 0.0:
-        f = w0 * dl
-        p[i0, 0] += f * g0x
-        p[i0, 1] += f * g0y
-        p[i0, 2] += f * g0z
-    if w1 > 0.0:
-        f = w1 * dl
-        p[i1, 0] += f * g1x
-        p[i1, 1] += f * g1y
-        p[i1, 2] += f * g1z
-    if w2 > 0.0:
-        f = w2 * dl
-        p[i2, 0] += f * g2x
-        p[i2, 1] += f * g2y
-        p[i2, 2] += f * g2z
-    if w3 > 0.0:
-        f = w3 * dl
-        p[i3, 0] += f * g3x
-        p[i3, 1] += f * g3y
-        p[i3, 2] += f * g3z
+    dl = _xpbd_step(c, al * inv_h2, den, lam, j)
+    _nudge(p, i0, w0, dl, g0x, g0y, g0z)
+    _nudge(p, i1, w1, dl, g1x, g1y, g1z)
+    _nudge(p, i2, w2, dl, g2x, g2y, g2z)
+    _nudge(p, i3, w3, dl, g3x, g3y, g3z)
 
 
 @njit(cache=True, parallel=True)
@@ -560,29 +543,11 @@ def _tet_volume_one(j, p, w, tets, rest, alpha, lam, inv_h2):
                      + cx * cx + cy * cy + cz * cz)
     if den <= 0.0 or gg <= s2 * s2:
         return
-    at = al * inv_h2
-    dl = (-c - at * lam[j]) / (den + at)
-    lam[j] += dl
-    if w0 > 0.0:
-        f = w0 * dl
-        p[i0, 0] += f * g0x
-        p[i0, 1] += f * g0y
-        p[i0, 2] += f * g0z
-    if w1 > 0.0:
-        f = w1 * dl
-        p[i1, 0] += f * g1x
-        p[i1, 1] += f * g1y
-        p[i1, 2] += f * g1z
-    if w2 > 0.0:
-        f = w2 * dl
-        p[i2, 0] += f * g2x
-        p[i2, 1] += f * g2y
-        p[i2, 2] += f * g2z
-    if w3 > 0.0:
-        f = w3 * dl
-        p[i3, 0] += f * g3x
-        p[i3, 1] += f * g3y
-        p[i3, 2] += f * g3z
+    dl = _xpbd_step(c, al * inv_h2, den, lam, j)
+    _nudge(p, i0, w0, dl, g0x, g0y, g0z)
+    _nudge(p, i1, w1, dl, g1x, g1y, g1z)
+    _nudge(p, i2, w2, dl, g2x, g2y, g2z)
+    _nudge(p, i3, w3, dl, g3x, g3y, g3z)
 
 
 @njit(cache=True, parallel=True)
