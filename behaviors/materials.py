@@ -75,6 +75,19 @@ class Packed:
         return len(self.idx)
 
 
+def _project_edges(ctx, d, p):
+    """Distance rows of a Packed set (stretch edges, stitches): damped where it has beta,
+    sequential or coloured parallel by its size."""
+    w = ctx.model.particle_inv_mass
+    if d.beta is not None:
+        fn = K.project_stretch_damped_seq if d.sequential else K.project_stretch_damped
+        fn(p, ctx.state.particle_q, w, d.idx, d.rest, d.alpha, d.alpha2, d.beta, d.lam,
+           ctx.dt, d.color_ptr)
+    else:
+        fn = K.project_stretch_seq if d.sequential else K.project_stretch
+        fn(p, w, d.idx, d.rest, d.alpha, d.alpha2, d.lam, ctx.dt, d.color_ptr)
+
+
 def _concat(parts):
     parts = [p for p in parts if p is not None and len(p[0])]
     if not parts:
@@ -145,14 +158,7 @@ class StretchConstraint(ConstraintBehavior):
         return Packed.build(idx, L, a, ac, beta=beta if beta.any() else None)
 
     def project(self, ctx, d, p):
-        w = ctx.model.particle_inv_mass
-        if d.beta is not None:
-            fn = K.project_stretch_damped_seq if d.sequential else K.project_stretch_damped
-            fn(p, ctx.state.particle_q, w, d.idx, d.rest, d.alpha, d.alpha2, d.beta, d.lam,
-               ctx.dt, d.color_ptr)
-        else:
-            fn = K.project_stretch_seq if d.sequential else K.project_stretch
-            fn(p, w, d.idx, d.rest, d.alpha, d.alpha2, d.lam, ctx.dt, d.color_ptr)
+        _project_edges(ctx, d, p)
 
     def residual(self, ctx, d, p):
         return float(K.residual_stretch(p, d.idx, d.rest)[0])
@@ -573,9 +579,7 @@ class StitchConstraint(ConstraintBehavior):
         return None if cat is None else Packed.build(*cat)
 
     def project(self, ctx, d, p):
-        fn = K.project_stretch_seq if d.sequential else K.project_stretch
-        fn(p, ctx.model.particle_inv_mass, d.idx, d.rest, d.alpha, d.alpha2, d.lam, ctx.dt,
-           d.color_ptr)
+        _project_edges(ctx, d, p)
 
     def residual(self, ctx, d, p):
         return float(K.residual_stretch(p, d.idx, d.rest)[0])

@@ -67,18 +67,22 @@ def _num(v):
     return {"true": True, "false": False}.get(v, v)
 
 
-def scene_frames(path) -> int:
-    f = load_scene(path).spec.frames
-    return f.end - f.start
+def worst_strain(compiled, q) -> tuple[float | None, int]:
+    """Largest edge elongation (L / L0 - 1) over the stretch constraints and a vertex of that
+    edge; (None, -1) without stretch constraints."""
+    out, vertex = None, -1
+    for b in compiled.schedule.find("StretchConstraint"):
+        d = b.data
+        e = np.linalg.norm(q[d.idx[:, 1]] - q[d.idx[:, 0]], axis=1) / np.maximum(d.rest, 1e-300)
+        j = int(e.argmax())
+        if out is None or e[j] - 1 > out:
+            out, vertex = float(e[j] - 1), int(d.idx[j, 0])
+    return out, vertex
 
 
 def max_strain(compiled, q) -> float:
-    out = 0.0
-    for b in compiled.schedule.find("StretchConstraint"):
-        d = b.data
-        L = np.linalg.norm(q[d.idx[:, 1]] - q[d.idx[:, 0]], axis=1)
-        out = max(out, float((L / np.maximum(d.rest, 1e-300) - 1).max()))
-    return out
+    s, _ = worst_strain(compiled, q)
+    return 0.0 if s is None else max(s, 0.0)
 
 
 def _energy(compiled, state) -> float:
@@ -93,8 +97,14 @@ def bench_setting(path, setting: dict, frames: int | None = None,
                   use_reference: bool = True) -> tuple[dict, np.ndarray]:
     """Run one setting for ``frames`` frames (the first is the warm-up); returns (row, final q)."""
     scene = _apply(load_scene(path), setting)
+    spec = scene.spec
+    scene_frames = spec.frames.end - spec.frames.start
     if frames is None:
-        frames = scene.spec.frames.end - scene.spec.frames.start
+        frames = scene_frames
+    ref_spec = spec.reference if reference is None and use_reference else None
+    if ref_spec is not None and ref_spec.kind == "stored" and frames != scene_frames:
+        raise ValueError(f"the stored reference is at frame {spec.frames.end}: run "
+                         f"{scene_frames} frames, not {frames}")
     times, warm = [], []
     for _ in range(repeats):
         compiled = compile_scene(scene)
@@ -121,25 +131,21 @@ def bench_setting(path, setting: dict, frames: int | None = None,
         "finite": bool(np.isfinite(q).all()),
         "max_penetrations": pen,
     })
-    spec = compiled.scene.spec
     if reference is not None:
-        err = np.linalg.norm(q - reference, axis=1)
-        row["position_error"] = float(err.max())
-        row["position_rms"] = float(np.sqrt((err ** 2).mean()))
-    elif spec.reference is not None and use_reference:
-        if spec.reference.kind == "stored" and frames != scene_frames(path):
-            raise ValueError(f"the stored reference is at frame {spec.frames.end}: run "
-                             f"{scene_frames(path)} frames, not {frames}")
-        t = frames / spec.frames.fps
-        idx, x = evaluate(compiled, spec.reference, t)
-        err = np.linalg.norm(q[idx] - x, axis=1)
-        row["position_error"] = float(err.max())
-        row["position_rms"] = float(np.sqrt((err ** 2).mean()))
-        if spec.reference.kind == "spring":
-            n = frames * spec.substeps
-            idx, x = exact_discrete_spring(compiled, spec.reference, compiled.model.dt, n)
-            row["discrete_error"] = float(np.linalg.norm(q[idx] - x, axis=1).max())
+        row.update(_position_errors(q, reference))
+    elif ref_spec is not None:
+        idx, x = evaluate(compiled, ref_spec, frames / spec.frames.fps)
+        row.update(_position_errors(q[idx], x))
+        if ref_spec.kind == "spring":
+            idx, x = exact_discrete_spring(compiled, ref_spec, compiled.model.dt,
+                                           frames * spec.substeps)
+            row["discrete_error"] = _position_errors(q[idx], x)["position_error"]
     return row, q
+
+
+def _position_errors(q, ref) -> dict:
+    err = np.linalg.norm(q - ref, axis=1)
+    return {"position_error": float(err.max()), "position_rms": float(np.sqrt((err ** 2).mean()))}
 
 
 def make_reference(path, out: Path | None = None) -> Path:

@@ -24,6 +24,13 @@ def _frames(text: str) -> tuple[int, int]:
             from None
 
 
+def _ints(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected N,N,... (integers), got {text!r}") from None
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="lokigraph", description="Cloth, hair and coupled "
                                 "simulation driven by a behavior graph.")
@@ -59,7 +66,8 @@ def _parser() -> argparse.ArgumentParser:
                     "scene's stored reference at its reference settings")
     bn.add_argument("--scaling", action="store_true", help="cloth drape 32x32..256x256: time "
                     "per frame against vertex count, fitted exponent, memory per vertex")
-    bn.add_argument("--sizes", default="32,64,128,256", help="--scaling grid resolutions")
+    bn.add_argument("--sizes", type=_ints, default="32,64,128,256",
+                    help="--scaling grid resolutions")
     bn.add_argument("--out", default="bench_out", help="folder for bench.csv/json/png")
 
     stz = sub.add_parser("stress", help="cases built to break the solver; pass/fail each")
@@ -186,8 +194,7 @@ def _bench(args) -> int:
 
     out = Path(args.out)
     if args.scaling:
-        sizes = [int(x) for x in args.sizes.split(",")]
-        res = run_scaling(out, sizes)
+        res = run_scaling(out, args.sizes)
         print(format_table(res["rows"]))
         print(f"time per frame ~ vertices^{res['exponent']:.2f} ({res['substeps']} substeps x "
               f"{res['iterations']} iterations; results in {out}/scaling.json)")

@@ -42,6 +42,7 @@ _TOL = 1e-12
 #: detection passes a vertex remembers which side of a kinematic sheet it came from after it
 #: was last near it (pushed-through cloth may be out of the contact band for a while)
 SIDE_MEMORY = 48
+_NEVER = -(1 << 40)  # detection pass stamp of "never"
 
 
 @dataclass
@@ -125,7 +126,7 @@ class CollisionDetect(Behavior):
     def bind(self, ctx, elements):
         m = ctx.model
         n = m.particle_count
-        groups, specs = [], []
+        groups = []
         for e in elements:
             g = e.get(CollisionGroup)
             resp = e.get(CollisionResponse) or CollisionResponse()
@@ -207,20 +208,16 @@ class CollisionDetect(Behavior):
                     allow[idx[a], idx[b]] = allow[idx[b], idx[a]] = False
             cat = lambda xs, s: np.concatenate(xs).astype(np.int64) if xs else np.zeros(  # noqa
                 s, np.int64)
-            specs.append(g)
             groups.append(_Group(
                 e.name, cat(verts, (0,)), cat(tris, (0, 3)), cat(edges, (0, 2)),
                 cat(tri_el, (0,)), cat(edge_el, (0,)), vert_elem, allow, tol, th_out, th_in,
                 fric, vis, setmask, one_sided, kin, "vertex_face" in g.methods,
                 "edge_edge" in g.methods, g.margin, resp.strength, resp.damping,
-                resp.restitution, resp.friction_scale))
+                resp.restitution, resp.friction_scale, recover=kin & g.recover_crossings,
+                side_mem=np.zeros((n, k), np.int8), side_seen=np.full((n, k), _NEVER),
+                crossed=np.full((n, k), _NEVER)))
         if not groups:
             return None
-        for g, spec in zip(groups, specs):
-            g.recover = g.kinematic_el & spec.recover_crossings
-            g.side_mem = np.zeros((n, len(g.one_sided)), np.int8)
-            g.side_seen = np.full((n, len(g.one_sided)), -(1 << 40), np.int64)
-            g.crossed = np.full((n, len(g.one_sided)), -(1 << 40), np.int64)
         return _Contacts(groups, np.zeros((n, 3)), damping=max(g.damping for g in groups))
 
     def init_state(self, model, state, data):
@@ -320,9 +317,8 @@ def _detect_all(d, x, x1, v, h) -> int:
         infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
         # vertices recently pushed through a kinematic sheet search 4x wider so that the
         # contact pulling them back is not lost when they are deeper than the contact band
-        recent = (g.crossed >= g.stamp - SIDE_MEMORY).any(axis=1)
-        if recent.any():
-            infl = infl.copy()
+        if g.recover.any():
+            recent = (g.crossed >= g.stamp - SIDE_MEMORY).any(axis=1)
             infl[recent] *= 4.0
         vf, ee, t = _detect_group(g, x, x1, infl, v, h)
         vf_all.append(vf)
@@ -392,7 +388,7 @@ def _min_bary(p, a, b, c):
 @njit(cache=True)
 def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, th_in, fric,
                visible, setmask, one_sided, x, v, h, restitution, margin, rows, nrm, tgt, mu,
-               one, kin_el, side_mem, side_seen, crossed_at, stamp):
+               one, recover, side_mem, side_seen, crossed_at, stamp):
     """Keep allowed vertex-triangle candidates; record start normal, target gap, friction.
 
     A dynamic vertex near a two-sided kinematic element remembers the side it came from (set
@@ -410,7 +406,7 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
         et = tri_elem[t]
         if not allow[ep, et]:
             continue
-        if kin_el[ep] and (crossed_at[a, ep] >= stamp - 1 or crossed_at[b, ep] >= stamp - 1
+        if recover[ep] and (crossed_at[a, ep] >= stamp - 1 or crossed_at[b, ep] >= stamp - 1
                            or crossed_at[c, ep] >= stamp - 1):
             continue  # a sheet vertex against cloth pushed through it: would hold it there
         if not (visible[p] and visible[a] and visible[b] and visible[c]):
@@ -442,13 +438,13 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
             crossed = False
             # the side is only meaningful where the vertex projects onto the triangle (beside
             # a box it is "below" the top face's plane and still outside)
-            if kin_el[et] and not kin_el[ep] and area2 > 0.0 \
+            if recover[et] and not recover[ep] and area2 > 0.0 \
                     and _min_bary(x[p], x[a], x[b], x[c]) >= -1e-3:
                 if side_seen[p, et] < stamp - SIDE_MEMORY or side_mem[p, et] == 0:
                     side_mem[p, et] = cur  # first seen: trust the start
                 side_seen[p, et] = stamp
                 crossed = side_mem[p, et] != cur
-            elif kin_el[et] and crossed_at[p, et] >= stamp - 1:
+            elif recover[et] and crossed_at[p, et] >= stamp - 1:
                 continue  # pushed through this sheet: only the triangles it is under pull back
             if crossed:
                 crossed_at[p, et] = stamp
