@@ -17,6 +17,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from .errors import Diagnostic
 
 
+MAX_INDEX = 2**31 - 1
+"""Largest vertex index accepted anywhere in a scene (indices are int64 internally; this bound
+keeps every index arithmetic far from overflow and is checked by validation, not at run time)."""
+
+VertexIndex = Annotated[int, Field(ge=0, le=MAX_INDEX)]
+"""A 0-based vertex index as written in a scene file."""
+
+
 class MapFile(BaseModel):
     """A per-vertex map stored in a file: ``.npy`` (shape (n,)) or text (one value per line)."""
 
@@ -28,7 +36,7 @@ class MapVertices(BaseModel):
     """A per-vertex map painted by listing vertices: ``value`` on them, ``default`` elsewhere."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-    vertices: list[Annotated[int, Field(ge=0)]] = Field(description="Vertex indices (0-based).")
+    vertices: list[VertexIndex] = Field(description="Vertex indices (0-based).")
     value: float = Field(1.0, description="Value on the listed vertices.")
     default: float = Field(0.0, description="Value on every other vertex.")
 
