@@ -12,6 +12,31 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def make_venv_sharing_deps(env_dir: Path) -> Path:
+    """A fresh venv whose dependencies (numpy, numba ...) come from the interpreter running the
+    tests, whatever that is (a venv or not), and nothing else: no network is needed and the
+    package under test is only what gets installed into the new venv.
+
+    ``system_site_packages`` would give the *base* Python's packages, which lack numba when the
+    tests run from a venv; a ``.pth`` file naming this interpreter's site-packages gives exactly
+    the packages the test run itself imports. Its own site-packages comes first on sys.path, so a
+    lokigraph installed there wins over any in the shared folders (and an editable install's
+    finder, activated by a .pth file of its own, is not run for a folder added this way).
+    """
+    import site
+    import sysconfig
+
+    venv.EnvBuilder(system_site_packages=False, with_pip=False).create(env_dir)
+    py = env_dir / "bin" / "python"
+    purelib = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_path("
+                              "'purelib'))"], capture_output=True, text=True, check=True)
+    dirs = dict.fromkeys([*site.getsitepackages(), sysconfig.get_path("purelib"),
+                          sysconfig.get_path("platlib")])
+    (Path(purelib.stdout.strip()) / "_lokigraph_test_deps.pth").write_text(
+        "\n".join(d for d in dirs if Path(d).is_dir()) + "\n")
+    return py
+
+
 def test_wheel_installs_and_runs(tmp_path):
     dist = tmp_path / "dist"
     r = subprocess.run([sys.executable, "-m", "build", "--wheel", "--no-isolation", "--outdir",
@@ -31,9 +56,7 @@ def test_wheel_installs_and_runs(tmp_path):
         assert must in names, must
     assert not any(n.startswith(("behaviors/", "components/", "graphs/")) for n in names)
     env_dir = tmp_path / "venv"
-    # system site packages provide numpy & co. (no network); the wheel itself goes in the venv
-    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
-    py = env_dir / "bin" / "python"
+    py = make_venv_sharing_deps(env_dir)
     r = subprocess.run([sys.executable, "-m", "pip", "--python", str(py), "install", "--quiet",
                         "--no-deps", "--no-index", str(wheel)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
