@@ -12,6 +12,7 @@ from numba import njit, prange
 
 from lokigraph.behavior import Behavior, ConstraintBehavior, vertex_indices
 from lokigraph.component import resolve_paintable
+from lokigraph.errors import InputError
 from lokigraph.components.core import Dynamic
 from lokigraph.components.materials import (Attachment, DiscreteShell, Goal, Pressure, Rigid,
                                             Rod, Stitch, Volume)
@@ -86,6 +87,15 @@ def _project_edges(ctx, d, p):
     else:
         fn = K.project_stretch_seq if d.sequential else K.project_stretch
         fn(p, w, d.idx, d.rest, d.alpha, d.alpha2, d.lam, ctx.dt, d.color_ptr)
+
+
+def _cross_norm(a, b):
+    """|a x b| row by row, shape (m,): np.linalg.norm(np.cross(a, b), axis=1) with the same
+    floating-point operations (bitwise equal), without np.cross's temporaries."""
+    cx = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    cy = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    cz = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return np.sqrt(cx * cx + cy * cy + cz * cz)
 
 
 def _concat(parts):
@@ -200,7 +210,8 @@ class ShearConstraint(ConstraintBehavior):
             rest = K.rest_angles(X, trip)
             area = triangle_areas(X, g.triangles)
             # three corners share the triangle's shear energy 1/2 k A gamma^2
-            a = 1.0 / (k * np.tile(area, 3) / 3.0)
+            with np.errstate(divide="ignore"):  # a zero-area triangle: infinite compliance
+                a = 1.0 / (k * np.tile(area, 3) / 3.0)
             parts.append((trip + e.vertex_offset, rest, a))
         cat = _concat(parts)
         if cat is None:
@@ -242,11 +253,11 @@ class BendConstraint(ConstraintBehavior):
                 q = T.bend_quads(g.triangles)
                 if not len(q):
                     continue
-                L = np.linalg.norm(X[q[:, 1]] - X[q[:, 0]], axis=1)
-                A1 = 0.5 * np.linalg.norm(np.cross(X[q[:, 1]] - X[q[:, 0]], X[q[:, 2]] - X[q[:, 0]]),
-                                          axis=1)
-                A2 = 0.5 * np.linalg.norm(np.cross(X[q[:, 1]] - X[q[:, 0]], X[q[:, 3]] - X[q[:, 0]]),
-                                          axis=1)
+                x0 = X[q[:, 0]]
+                hinge = X[q[:, 1]] - x0
+                L = np.linalg.norm(hinge, axis=1)
+                A1 = 0.5 * _cross_norm(hinge, X[q[:, 2]] - x0)
+                A2 = 0.5 * _cross_norm(hinge, X[q[:, 3]] - x0)
                 k = c.bend_resistance * 3.0 * L * L / np.maximum(A1 + A2, 1e-300)
                 quads.append(q + e.vertex_offset)
                 qrest.append(K.rest_dihedrals(X, q))
@@ -496,9 +507,11 @@ class AttachmentConstraint(ConstraintBehavior):
             if tgt.geometry is None or not len(tgt.geometry.triangles):
                 ctx.error(e, "Attachment.target", f"{c.target!r} has no triangles")
                 continue
-            verts = np.arange(src.vertex_count) if c.vertices is None else np.asarray(c.vertices)
-            if len(verts) and (verts.min() < 0 or verts.max() >= src.vertex_count):
-                ctx.error(e, "Attachment.vertices", "vertex index out of range")
+            try:  # indices, a group name or a selection on the source element
+                verts = c.source_vertices(src)
+            except InputError as exc:
+                for d in exc.diagnostics:
+                    ctx.error(e, "Attachment.vertices", f"on {c.source!r}: {d.message}")
                 continue
             q0 = ctx.model.particle_q0
             tris = tgt.geometry.triangles + tgt.vertex_offset

@@ -65,8 +65,8 @@ class StrainLimitParams(ConstraintParams):
     mode: Literal["constitutive", "post"] = Field(
         "constitutive", description="'constitutive': solved together with the contacts; "
         "'post': a strain-limiting pass after the solve (for comparison).")
-    post_iterations: int = Field(10, ge=1, description="Passes of the post mode.")
-    joint_iterations: int = Field(40, ge=1, description="Most joint contact + strain-limit "
+    post_iterations: int = Field(10, ge=1, le=10000, description="Passes of the post mode.")
+    joint_iterations: int = Field(40, ge=1, le=10000, description="Most joint contact + strain-limit "
                                   "passes in the final collision rounds (stops when both hold).")
     tolerance: float = Field(1e-3, ge=0, description="Accepted relative excess over the limit.")
 

@@ -36,6 +36,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from lokigraph.behavior import register_bind_cache
+
 __all__ = [
     "TriangleTopology",
     "TetTopology",
@@ -74,9 +76,27 @@ def _as_index_array(a, ncols: int | None, name: str) -> np.ndarray:
 
 
 def _unique_sorted_rows(keys_2d: np.ndarray):
-    """Unique rows of an int64 array (rows already sorted within), with the inverse map."""
+    """Unique rows of a non-negative int64 array (rows already sorted within), in lexicographic
+    order, with the inverse map.
+
+    When the rows fit one int64 key (``base ** k <= 2**62`` with ``base = max + 1``) they are
+    packed into it and sorted as scalars, which gives the same result as ``np.unique(axis=0)``
+    about 20 times faster (a 10^6-vertex mesh's edges in 0.5 s instead of 9 s).
+    """
     if keys_2d.shape[0] == 0:
         return keys_2d.copy(), np.zeros(0, dtype=np.int64)
+    k = keys_2d.shape[1]
+    base = int(keys_2d.max()) + 1
+    if int(keys_2d.min()) >= 0 and base ** k <= 2 ** 62:
+        key = keys_2d[:, 0].astype(np.int64)
+        for c in range(1, k):
+            key = key * base + keys_2d[:, c]
+        ukey, inverse = np.unique(key, return_inverse=True)
+        uniq = np.empty((ukey.shape[0], k), dtype=np.int64)
+        for c in range(k - 1, -1, -1):  # unpack the last column first
+            uniq[:, c] = ukey % base
+            ukey = ukey // base
+        return uniq, inverse.reshape(-1).astype(np.int64)
     uniq, inverse = np.unique(keys_2d, axis=0, return_inverse=True)
     return np.ascontiguousarray(uniq, dtype=np.int64), inverse.reshape(-1).astype(np.int64)
 
@@ -102,12 +122,50 @@ class TriangleTopology(NamedTuple):
     tri_edges: np.ndarray
 
 
+# Results kept for the next call with the same mesh (the stretch, bend and tether binds of one
+# element ask for the same topology): callers get copies, so the kept arrays never change.
+_TOPOLOGY_CACHE: list = []  # [(private copy of tris, TriangleTopology)], most recent first
+_QUAD_CACHE: list = []  # [(TriangleTopology kept in _TOPOLOGY_CACHE, quads, inner edges)]
+
+
 def triangle_topology(tris) -> TriangleTopology:
     """Unique edges of a triangle mesh with edge-triangle and triangle-edge adjacency.
 
     tris: vertex indices, shape (T, 3).
+
+    The result for the last large mesh is kept: a call with equal triangles gets a
+    copy of the kept result (a copy costs a few per cent of a rebuild).
     """
     tris = _as_index_array(tris, 3, "tris")
+    topo = _kept_topology(tris)
+    if topo is not None:
+        return TriangleTopology(*(a.copy() for a in topo))
+    topo = _triangle_topology(tris)
+    if tris.shape[0] >= 4096:  # small meshes are cheap to rebuild: keep only large ones
+        _TOPOLOGY_CACHE.insert(0, (tris.copy(), TriangleTopology(*(a.copy() for a in topo))))
+        del _TOPOLOGY_CACHE[1:]
+        del _QUAD_CACHE[1:]
+    return topo
+
+
+def clear_topology_cache() -> None:
+    """Drop the kept topology of the last large mesh (about 300 MB for 10^6 vertices); compile
+    calls this once every behaviour is bound (registered with register_bind_cache)."""
+    _TOPOLOGY_CACHE.clear()
+    _QUAD_CACHE.clear()
+
+
+register_bind_cache(clear_topology_cache)
+
+
+def _kept_topology(tris: np.ndarray):
+    for key, topo in _TOPOLOGY_CACHE:
+        if key.shape == tris.shape and np.array_equal(key, tris):
+            return topo
+    return None
+
+
+def _triangle_topology(tris: np.ndarray) -> TriangleTopology:
     t = tris.shape[0]
     a = tris[:, [0, 1, 2]].reshape(-1)
     b = tris[:, [1, 2, 0]].reshape(-1)
@@ -118,7 +176,9 @@ def triangle_topology(tris) -> TriangleTopology:
     edge_tris = np.full((edges.shape[0], 2), -1, dtype=np.int64)
     if t:
         half_tri = np.repeat(np.arange(t, dtype=np.int64), 3)
-        order = np.lexsort((half_tri, inverse))  # by edge, then by triangle
+        # by edge, then by triangle: half_tri is non-decreasing, so a stable sort by edge is
+        # the same permutation as np.lexsort((half_tri, inverse)), and several times faster
+        order = np.argsort(inverse, kind="stable")
         sorted_edge = inverse[order]
         start = np.concatenate([[0], np.cumsum(count)[:-1]])
         first = order[start]
@@ -166,7 +226,12 @@ def bend_quads(tris, return_edge: bool = False):
     each quad (into :func:`triangle_topology`'s ``edges``), shape (Q,).
     """
     tris = _as_index_array(tris, 3, "tris")
+    kept = _kept_topology(tris)
+    for t, quads, inner in _QUAD_CACHE:  # the bend and tether binds ask for the same mesh
+        if t is kept:
+            return (quads.copy(), inner.copy()) if return_edge else quads.copy()
     topo = triangle_topology(tris)
+    kept = _kept_topology(tris)
     inner = np.flatnonzero(topo.edge_triangle_count == 2)
     ta = topo.edge_tris[inner, 0]
     tb = topo.edge_tris[inner, 1]
@@ -178,6 +243,9 @@ def bend_quads(tris, return_edge: bool = False):
     k = tris[ta, (ka + 2) % 3]
     l = tris[tb, (kb + 2) % 3]
     quads = np.ascontiguousarray(np.stack([i, j, k, l], axis=1), dtype=np.int64)
+    if kept is not None:
+        _QUAD_CACHE.insert(0, (kept, quads.copy(), inner.astype(np.int64)))
+        del _QUAD_CACHE[1:]
     if return_edge:
         return quads, inner.astype(np.int64)
     return quads
@@ -371,7 +439,7 @@ def tet_topology(tets) -> TetTopology:
         raise ValueError(f"tets: {int(np.sum(count > 2))} faces shared by more than two tets")
     face_tets = np.full((faces.shape[0], 2), -1, dtype=np.int64)
     owner = np.repeat(np.arange(t, dtype=np.int64), 4)
-    order = np.lexsort((owner, inverse))
+    order = np.argsort(inverse, kind="stable")  # == lexsort((owner, inverse)): owner ascends
     start = np.concatenate([[0], np.cumsum(count)[:-1]]).astype(np.int64)
     face_tets[:, 0] = owner[order[start]]
     two = count == 2

@@ -12,8 +12,10 @@ Vec3 = tuple[float, float, float]
 
 
 class WindKey(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    frame: float
+    """A key of the wind: speed and/or direction at a frame (linear in between)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    frame: float = Field(ge=-1e7, le=1e7, description="Frame number of the key.")
     speed: float | None = Field(None, description="Wind speed at this key [m/s].")
     direction: Vec3 | None = Field(None, description="Wind direction at this key.")
 
@@ -29,7 +31,7 @@ class Wind(Component):
     speed: float = Field(0.0, description="Wind speed [m/s].")
     noise: float = Field(0.0, ge=0, description="Gust amplitude relative to speed [-].")
     noise_scale: float = Field(1.0, gt=0, description="Largest gust wavelength [m].")
-    seed: int = Field(0, description="Seed of the gust pattern.")
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of the gust pattern.")
     keys: list[WindKey] = Field(default_factory=list, description="Keyed speed / direction.")
 
 

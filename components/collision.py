@@ -6,7 +6,7 @@ from typing import ClassVar, Literal
 
 from pydantic import Field
 
-from lokigraph.component import Component, Paintable
+from lokigraph.component import Component, Paintable, VertexIndex
 
 
 class Collider(Component):
@@ -32,7 +32,7 @@ class Collider(Component):
     collide_dynamic: bool = Field(True, description="Collide with other dynamic objects.")
     collide_kinematic: bool = Field(True, description="Collide with kinematic objects.")
     collide_self: bool = Field(True, description="Self collisions (dynamic objects).")
-    nocollide_sets: dict[str, list[int]] = Field(
+    nocollide_sets: dict[str, list[VertexIndex]] = Field(
         default_factory=dict, description="Named vertex sets: vertices in sets of the same name "
         "(on this or other objects) do not collide with each other, only with everything else.")
 

@@ -7,7 +7,8 @@ from typing import ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from lokigraph.component import Component, Paintable, resolve_paintable
+from lokigraph.component import Component, Paintable, VertexIndex, resolve_paintable
+from lokigraph.selection import SelectionLike, resolve_selection
 from lokigraph.geometry import vertex_measure
 
 Vec3 = tuple[float, float, float]
@@ -53,8 +54,8 @@ class Dynamic(Component):
 class Key(BaseModel):
     """A rigid keyframe of a kinematic element (linear interpolation between keys)."""
 
-    model_config = ConfigDict(extra="forbid")
-    frame: float = Field(description="Frame number of the key.")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    frame: float = Field(ge=-1e7, le=1e7, description="Frame number of the key.")
     translate: Vec3 = Field((0.0, 0.0, 0.0), description="Translation [m].")
     rotate: Vec3 = Field((0.0, 0.0, 0.0), description="Rotation about x, y, z [degrees], about "
                                                        "the pivot.")
@@ -64,7 +65,10 @@ class Key(BaseModel):
 class Kinematic(Component):
     """The element follows animation: rigid ``keys``, or the mesh ``sequence`` of its geometry.
 
-    Without either it stays at its rest pose (a static collider).
+    Without either it stays at its rest pose (a static collider). A sequence must have a file
+    for every frame of the run unless its ``geometry.hold`` is ``first``, ``last`` or ``loop``
+    (checked by validate). Dynamic vertices can ride on a kinematic element with
+    ``Pins: {select: ..., follow: NAME}``.
     """
 
     particle_role: ClassVar[str] = "kinematic"
@@ -73,6 +77,14 @@ class Kinematic(Component):
     def compliant_stiffness(self, element) -> np.ndarray:
         """Per-vertex spring stiffness [N/m] of compliant vertices (0 = not compliant)."""
         k = resolve_paintable(self.stiffness, element, "Kinematic.stiffness")
+        if not np.all(np.isfinite(k)) or np.any(k < 0):
+            from lokigraph.errors import Diagnostic, InputError
+
+            i = int(np.argmax(~np.isfinite(k) | (k < 0)))
+            raise InputError(Diagnostic(file=element.source_file, line=element.line,
+                                        element=element.name, field="Kinematic.stiffness",
+                                        message=f"must be finite and >= 0 on every vertex (got "
+                                                f"{k[i]:g} at vertex {i})"))
         if not np.any(k):
             return np.zeros(element.vertex_count)
         meas = vertex_measure(element.geometry)
@@ -88,6 +100,13 @@ class Kinematic(Component):
                                  "unknowns that only contacts can push; 0 = follows the "
                                  "animation exactly. Paintable.")
 
+    @field_validator("stiffness")
+    @classmethod
+    def _nonnegative(cls, v):
+        if isinstance(v, (int, float)) and v < 0:
+            raise ValueError(f"must be >= 0 (got {v:g})")
+        return v
+
     @field_validator("keys")
     @classmethod
     def _sorted(cls, v):
@@ -98,29 +117,57 @@ class Kinematic(Component):
 
 
 class Pins(Component):
-    """Hard pins: pinned vertices keep their initial position exactly.
+    """Hard pins: pinned vertices get inverse mass 0, so no force or constraint moves them.
 
-    Give ``vertices`` (0-based indices) and/or a painted ``map`` (pinned where map > threshold).
+    The pinned vertices are the union of ``select`` (a selection: a group name such as
+    ``waist`` or a grid's ``top``, a region, a channel threshold, a combination; see
+    :mod:`lokigraph.selection`), ``vertices`` (0-based indices) and a painted ``map`` (pinned
+    where map > ``threshold``).
+
+    Without ``follow`` they keep their initial position exactly. With ``follow: BODY`` (a
+    ``Kinematic`` element) they are carried by BODY's animation: at bind time each pinned vertex
+    x is bound to the nearest triangle (a, b, c) of BODY at its initial pose: the barycentric
+    coordinates w of the closest point s = w_a a + w_b b + w_c c, and the offset d = x - s
+    expressed in the triangle's frame (e1 = unit(b - a), n = unit((b - a) x (c - a)),
+    e2 = n x e1), all fixed. Every substep the vertex is placed at s(t) + [e1 e2 n](t) d from
+    the triangle's animated vertices: exact under rigid motion of the body (translation and
+    rotation), and it follows the body's deformation otherwise. A body without triangles
+    carries each vertex by its nearest vertex (the offset kept in world axes: translation only).
     """
 
     needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
-    vertices: list[int] = Field(default_factory=list, description="Pinned vertex indices.")
+    selection_fields: ClassVar[tuple[str, ...]] = ("select",)
+    select: SelectionLike | None = Field(None, description="Pinned vertices by selection: a "
+                                         "group name, or {group: ...}, {box: ...}, {sphere: ...},"
+                                         " {plane: ...}, {channel: ..., above: ...}, {union: "
+                                         "[...]}, ... (see lokigraph.selection).")
+    vertices: list[VertexIndex] = Field(default_factory=list, description="Pinned vertex "
+                                        "indices (0-based).")
     map: Paintable | None = Field(None, description="Painted pin weights; pinned where > "
                                                     "threshold.")
     threshold: float = Field(0.5, description="Map value above which a vertex is pinned.")
+    follow: str | None = Field(None, description="A Kinematic element whose animation carries "
+                               "the pinned vertices (nearest triangle, barycentric coordinates "
+                               "and an offset in the triangle's frame fixed at bind); null = "
+                               "pinned in place.")
 
     def pinned(self, element) -> np.ndarray:
+        """Boolean mask (vertex_count,) of the pinned vertices; InputError if out of range."""
+        from lokigraph.errors import Diagnostic, InputError
+
         mask = np.zeros(element.vertex_count, dtype=bool)
         idx = np.asarray(self.vertices, dtype=np.int64)
         if idx.size:
-            if idx.min() < 0 or idx.max() >= element.vertex_count:
-                from lokigraph.errors import Diagnostic, InputError
-
+            if idx.max() >= element.vertex_count:
                 raise InputError(Diagnostic(file=element.source_file, line=element.line,
-                                            element=element.name, field="Pins.vertices",
-                                            message=f"vertex index out of range [0, "
-                                                    f"{element.vertex_count})"))
+                                            column=element.column, element=element.name,
+                                            field="Pins.vertices",
+                                            message=f"vertex index {int(idx.max())} out of "
+                                                    f"range (element has "
+                                                    f"{element.vertex_count} vertices)"))
             mask[idx] = True
+        if self.select is not None:
+            mask[resolve_selection(self.select, element, "Pins.select")] = True
         if self.map is not None:
             mask |= resolve_paintable(self.map, element, "Pins.map") > self.threshold
         return mask
@@ -133,6 +180,14 @@ class RestSpring(Component):
     """
 
     needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
-    stiffness: Paintable = Field(1.0, description="Spring stiffness per vertex [N/m]. Paintable.")
+    stiffness: Paintable = Field(1.0, description="Spring stiffness per vertex [N/m], >= 0. "
+                                                  "Paintable.")
     anchor: Vec3 | None = Field(None, description="Fixed anchor point [m] for every vertex "
                                                   "instead of its rest position.")
+
+    @field_validator("stiffness")
+    @classmethod
+    def _nonnegative(cls, v):
+        if isinstance(v, (int, float)) and v < 0:
+            raise ValueError(f"must be >= 0 (got {v:g})")
+        return v

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from pydantic import Field
 
 from lokigraph.component import Component
 
 Vec3 = tuple[float, float, float]
+_Pos = Annotated[float, Field(gt=0)]
 
 
 class FluidDomain(Component):
@@ -20,7 +23,8 @@ class FluidDomain(Component):
     """
 
     origin: Vec3 = Field((0.0, 0.0, 0.0), description="Lower corner of the grid box [m].")
-    size: Vec3 = Field((1.0, 1.0, 1.0), description="Size of the grid box [m].")
+    size: tuple[_Pos, _Pos, _Pos] = Field((1.0, 1.0, 1.0), description="Size of the grid box "
+                                                                       "[m], > 0 on each axis.")
     file: str | None = Field(None, description="Velocity grid .npz, relative to the scene file.")
     uniform: Vec3 = Field((0.0, 0.0, 0.0), description="Velocity when no file is given [m/s].")
     density: float = Field(1.204, gt=0, description="Fluid density [kg/m^3] (informative).")

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal
 
+import numpy as np
 from pydantic import Field, model_validator
 
-from lokigraph.component import Component, Paintable
+from lokigraph.component import Component, Paintable, VertexIndex
+from lokigraph.selection import IndicesOrSelection, resolve_selection
 
 
 class DiscreteShell(Component):
@@ -40,7 +42,8 @@ class DiscreteShell(Component):
     max_strain: Paintable | None = Field(None, description="Strain limit eps_e [-]: no edge "
                                          "longer than (1 + eps_e) L0 (Loki constitutive strain "
                                          "limiting, solved with the contacts). Paintable.")
-    max_tether_anchors: int = Field(4, ge=1, description="Tethers per vertex (nearest pins).")
+    max_tether_anchors: int = Field(4, ge=1, le=1000, description="Tethers per vertex (nearest "
+                                                                   "pins).")
 
 
 class Rod(Component):
@@ -62,7 +65,8 @@ class Rod(Component):
     rest_channel: str | None = Field(None, description="Channel with rest positions (n, 3).")
     tethers: bool = Field(True, description="Long-range tethers to pinned vertices (inextensible "
                                             "only).")
-    max_tether_anchors: int = Field(2, ge=1, description="Tethers per vertex (nearest pins).")
+    max_tether_anchors: int = Field(2, ge=1, le=1000, description="Tethers per vertex (nearest "
+                                                                   "pins).")
     max_strain: Paintable | None = Field(None, description="Strain limit eps_e [-] of every "
                                          "segment (constitutive, solved with contacts).")
 
@@ -93,13 +97,29 @@ class Goal(Component):
 class Attachment(Component):
     """Point-to-surface attachment (a data-less element): vertices of ``source`` are attached to
     the closest triangles of ``target``, at fixed barycentric coordinates (``fixed``) or free to
-    slide along the surface (``sliding``)."""
+    slide along the surface (``sliding``).
 
+    ``fixed`` keeps no offset: each vertex is drawn onto the closest point of the surface found
+    at bind (x = sum of barycentrics times the triangle's vertices), so a vertex that starts off
+    the surface moves onto it. To carry vertices *with* their offset on an animated body, use
+    ``Pins: {select: ..., follow: BODY}``. ``vertices`` takes indices, a group name or any
+    selection (lokigraph.selection) on the source element."""
+
+    #: fields selecting vertices of another element (resolved at bind, not on this element)
+    foreign_selections: ClassVar[tuple[str, ...]] = ("vertices",)
     source: str = Field(description="Element whose vertices are attached.")
     target: str = Field(description="Element providing the surface (triangles).")
-    vertices: list[int] | None = Field(None, description="Source vertices (default: all).")
+    vertices: IndicesOrSelection | None = Field(
+        None, description="Source vertices: a list of 0-based indices, a group name or a "
+        "selection ({group: ...}, {box: ...}, ...) on the source element (default: all).")
     mode: Literal["fixed", "sliding"] = "fixed"
     stiffness: float | None = Field(None, gt=0, description="Stiffness [N/m]; null = hard.")
+
+    def source_vertices(self, source) -> np.ndarray:
+        """Local indices of the attached vertices of ``source`` (InputError if invalid)."""
+        if self.vertices is None:
+            return np.arange(source.vertex_count, dtype=np.int64)
+        return resolve_selection(self.vertices, source, "Attachment.vertices")
 
 
 class Stitch(Component):
@@ -111,7 +131,8 @@ class Stitch(Component):
 
     a: str = Field(description="First element.")
     b: str = Field(description="Second element.")
-    pairs: list[tuple[int, int]] = Field(default_factory=list)
+    pairs: list[tuple[VertexIndex, VertexIndex]] = Field(
+        default_factory=list, description="[vertex of a, vertex of b] pairs (0-based indices).")
     weld_distance: float | None = Field(None, gt=0, description="Auto-pair distance [m].")
     stiffness: float | None = Field(None, gt=0, description="Stiffness [N/m]; null = weld.")
 

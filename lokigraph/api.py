@@ -10,8 +10,13 @@ from .scene import load_scene
 
 
 def compile_file(path: str | Path) -> Compiled:
-    """Load, validate and compile a scene file (raises InputError with every problem found)."""
-    return compile_scene(load_scene(path))
+    """Load, validate and compile a scene file (raises InputError with every problem found).
+
+    The scene is loaded with ``partial=True`` so that compile checks what is valid even when
+    other parts are not: the problems of the scene file and those compile finds (unknown
+    collision-group members, bad graph overrides, out-of-range vertices ...) come in one error.
+    """
+    return compile_scene(load_scene(path, partial=True))
 
 
 def run_file(path: str | Path, **kw) -> RunResult:

@@ -28,9 +28,9 @@ STAGES = ("control", "forces", "collision", "solve", "coupling", "diagnostics")
 
 
 class Params(BaseModel):
-    """Graph-level parameters of a behavior (strict)."""
+    """Graph-level parameters of a behavior (strict; NaN and infinities rejected)."""
 
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class ConstraintParams(Params):
@@ -130,6 +130,22 @@ def vertex_indices(elements) -> np.ndarray:
     """Global vertex indices of ``elements``, concatenated in order, int64."""
     parts = [np.arange(e.vertex_slice.start, e.vertex_slice.stop) for e in elements]
     return np.concatenate(parts).astype(np.int64) if parts else np.zeros(0, np.int64)
+
+
+_BIND_CACHES: list = []
+
+
+def register_bind_cache(clear) -> None:
+    """Register ``clear()``, which drops a memo that behaviors keep while they bind (e.g. the
+    topology of a large mesh shared by several behaviors); compile calls every registered one
+    once all behaviors are bound, so the memo does not outlive the compile."""
+    if clear not in _BIND_CACHES:
+        _BIND_CACHES.append(clear)
+
+
+def clear_bind_caches() -> None:
+    for clear in _BIND_CACHES:
+        clear()
 
 
 @dataclass

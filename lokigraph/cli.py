@@ -1,18 +1,33 @@
 """The ``lokigraph`` command line.
 
-Exit codes: 0 success, 2 invalid input (YAML, components, graph), 3 simulation failure,
-1 anything unexpected (a bug: the traceback is printed).
+Exit codes:
+
+- 0 success;
+- 2 invalid input (YAML, components, graph, ``--frames`` outside the scene's range), or an
+  output location found unusable before running: ``--out`` is a file, an element folder is a
+  file, a folder cannot be created or written, or it holds another run's output (give
+  ``--overwrite``);
+- 3 simulation failure (a non-finite value), or a write failure during the run (disk full,
+  permission lost);
+- 130 interrupted by Ctrl-C (SIGINT), 143 terminated by SIGTERM: the frame being written is
+  finished or discarded, and ``run.json`` is written with status ``interrupted``;
+- 1 anything unexpected (a bug: the traceback is printed).
+
+Errors other than 1 are reported without a traceback; ``run.json`` records ``ok``, ``failed`` or
+``interrupted`` for every run that started.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
+import threading
 import traceback
 
-from .errors import (EXIT_INPUT, EXIT_OK, EXIT_SIMULATION, EXIT_UNEXPECTED, InputError,
-                     LokigraphError)
+from .errors import (EXIT_OK, EXIT_SIMULATION, EXIT_UNEXPECTED, InputError, LokigraphError,
+                     OutputError)
 
 
 def _frames(text: str) -> tuple[int, int]:
@@ -42,7 +57,10 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--frames", type=_frames, help="write frames A:B (simulates from the start)")
     r.add_argument("--out", help="output folder (default: the scene's output.dir)")
     r.add_argument("--format", choices=["obj", "ply", "vtu"], help="mesh format of frames")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument("--quiet", action="store_true", help="no progress output")
+    r.add_argument("--overwrite", action="store_true", help="replace another run's output in the "
+                   "folder (default: the scene's output.overwrite; without it such a run is "
+                   "refused)")
 
     v = sub.add_parser("validate", help="check a scene (everything compile checks), no run")
     v.add_argument("scene")
@@ -86,18 +104,52 @@ def _version() -> str:
     return __version__
 
 
+EXIT_SIGINT = 128 + signal.SIGINT    # 130
+EXIT_SIGTERM = 128 + signal.SIGTERM  # 143
+
+
+def _on_sigterm(signum, _frame):
+    from .run import RunInterrupted
+
+    raise RunInterrupted(signum)
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    # SIGTERM becomes a clean interruption (like Ctrl-C), restored on return
+    old = None
+    if threading.current_thread() is threading.main_thread() and \
+            signal.getsignal(signal.SIGTERM) is signal.SIG_DFL:
+        old = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return _main(args)
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGTERM, old)
+
+
+def _main(args) -> int:
     try:
         return _dispatch(args)
     except LokigraphError as exc:
-        print(f"error: {exc}" if not isinstance(exc, InputError) else str(exc), file=sys.stderr)
+        msg = f"error: {exc}" if not isinstance(exc, InputError) else str(exc)
+        res = getattr(exc, "result", None)
+        if res is not None and res.out_dir is not None:
+            msg += f"; kept {res.summary()}"
+        print(msg, file=sys.stderr)
         return exc.exit_code
     except BrokenPipeError:  # output piped into e.g. `head`
         return EXIT_OK
-    except KeyboardInterrupt:
-        print("interrupted; frames written so far are kept", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        what = "interrupted" if signum == signal.SIGINT else \
+            f"terminated ({signal.Signals(signum).name})"
+        res = getattr(exc, "result", None)
+        if res is not None and res.out_dir is not None:
+            print(f"{what}: kept {res.summary()}", file=sys.stderr)
+        else:
+            print(f"{what}; frames written so far are kept", file=sys.stderr)
+        return 128 + signum
     except Exception:  # noqa: BLE001 - a bug: show everything
         traceback.print_exc()
         print("lokigraph: unexpected internal error (exit 1); please report it with the "
@@ -117,7 +169,10 @@ def _dispatch(args) -> int:
 
             from .run import atomic_write
 
-            atomic_write(Path(args.out), lambda p: p.write_text(text))
+            try:
+                atomic_write(Path(args.out), lambda p: p.write_text(text))
+            except OSError as exc:
+                raise OutputError(f"cannot write {args.out}: {exc.strerror or exc}") from None
         else:
             print(text)
         return EXIT_OK
@@ -131,15 +186,23 @@ def _dispatch(args) -> int:
                               progress=lambda r: print(format_rows([r]), flush=True))
         except ValueError as exc:
             raise InputError(f"stress: {exc}") from None
+        except OSError as exc:
+            raise OutputError(f"stress: cannot write results: {_os_message(exc)}") from None
         failed = [r for r in rows if not r["passed"]]
         print(f"{len(rows) - len(failed)}/{len(rows)} cases passed")
         return EXIT_OK if not failed else EXIT_SIMULATION
     if args.command == "bench":
-        return _bench(args)
+        try:
+            return _bench(args)
+        except OSError as exc:
+            raise OutputError(f"bench: cannot write results: {_os_message(exc)}") from None
     from .api import compile_file
 
     compiled = compile_file(args.scene)
     if args.command == "validate":
+        from .run import output_elements
+
+        output_elements(compiled)  # output.elements names real elements with geometry
         n = len(compiled.scene.elements)
         print(f"{args.scene}: ok ({n} elements, {compiled.model.particle_count} vertices, "
               f"{len(compiled.schedule.all())} behaviors scheduled, "
@@ -155,10 +218,10 @@ def _dispatch(args) -> int:
         from .run import run
 
         res = run(compiled, frames=args.frames, out_dir=args.out, fmt=args.format,
-                  progress=False if args.quiet else None)
+                  progress=not args.quiet, overwrite=True if args.overwrite else None)
         tot = sum(res.frame_seconds)
-        print(f"wrote {len(res.frames_written)} frames to {res.out_dir} "
-              f"({tot:.2f} s wall time, {tot / max(len(res.frame_seconds), 1) * 1e3:.1f} ms/frame)")
+        print(f"wrote {res.summary()} ({tot:.2f} s wall time, "
+              f"{tot / max(len(res.frame_seconds), 1) * 1e3:.1f} ms/frame)")
         return EXIT_OK
     raise InputError(f"unknown command {args.command}")  # pragma: no cover
 
@@ -183,8 +246,10 @@ def _cmd_behaviors() -> int:
     return EXIT_OK
 
 
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+
+
+def _os_message(exc: OSError) -> str:
+    return f"{exc.strerror or exc}" + (f": {exc.filename}" if exc.filename else "")
 
 
 def _bench(args) -> int:
@@ -222,3 +287,7 @@ def _bench(args) -> int:
     print(f"(results in {out}/bench.csv, bench.json, bench.png; pareto = fastest setting for its "
           f"error level)")
     return EXIT_OK
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import difflib
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -20,12 +21,12 @@ import networkx as nx
 import numpy as np
 from pydantic import ValidationError
 
-from .behavior import STAGES, BindContext, Behavior, ConstraintBehavior
-from .component import pydantic_diagnostics
+from .behavior import STAGES, BindContext, Behavior, ConstraintBehavior, clear_bind_caches
+from .component import pydantic_messages
 from .errors import Diagnostic, GraphError, InputError
 from .model import Model
 from .registry import get_registry
-from .scene import Scene
+from .scene import MAX_STEP_RATE, Scene
 from .yamlio import Locations, load_yaml
 
 def shipped_graph_dir() -> Path:
@@ -56,18 +57,26 @@ def resolve_graph_path(graph: str, base_dir: str) -> Path:
     p = Path(graph)
     if p.suffix in (".yaml", ".yml"):
         cand = Path(base_dir) / p
-        return cand if cand.exists() else p
+        return cand if _exists(cand) else p
     return shipped_graph_dir() / f"{graph}.yaml"
+
+
+def _exists(path: Path) -> bool:
+    try:
+        return path.exists()
+    except (OSError, ValueError):  # a name too long for the file system, a NUL byte
+        return False
 
 
 def load_graph(graph: str, base_dir: str = ".", scene_locs: Locations | None = None) -> GraphSpec:
     path = resolve_graph_path(graph, base_dir)
-    if not path.exists():
+    if not _exists(path):
         shipped = sorted(x.stem for x in shipped_graph_dir().glob("*.yaml"))
         import difflib
 
         near = difflib.get_close_matches(graph, shipped, n=1)
-        msg = (f"graph {graph!r} not found" + (f"; did you mean {near[0]!r}?" if near else "")
+        shown = repr(graph) if len(graph) <= 80 else repr(graph[:60]) + f" ({len(graph)} chars)"
+        msg = (f"graph {shown} not found" + (f"; did you mean {near[0]!r}?" if near else "")
                + f" (shipped graphs: {', '.join(shipped)})")
         if scene_locs is not None:
             raise GraphError(scene_locs.diag(("graph",), msg))
@@ -108,8 +117,16 @@ def load_graph(graph: str, base_dir: str = ".", scene_locs: Locations | None = N
             after = item.get("after") or []
             if isinstance(after, str):
                 after = [after]
-            nodes.append(GraphNode(name, t, str(domain), dict(item.get("params") or {}),
-                                   list(after), npath))
+            if not isinstance(after, list) or not all(isinstance(a, str) for a in after):
+                diags.append(locs.diag(npath + ("after",), "'after' is a node name or a list of "
+                                                           "node names"))
+                after = []
+            params = item.get("params") or {}
+            if not isinstance(params, dict):
+                diags.append(locs.diag(npath + ("params",), "'params' maps parameter names to "
+                                                            "values"))
+                params = {}
+            nodes.append(GraphNode(name, t, str(domain), dict(params), list(after), npath))
     if diags:
         raise GraphError(diags)
     return GraphSpec(str(data.get("name") or path.stem), str(path), nodes, locs)
@@ -189,9 +206,13 @@ class Compiled:
 
 
 def _instantiate(graph: GraphSpec, scene: Scene, diags: list) -> list[tuple[Behavior, GraphNode]]:
+    """Validate every node's parameters (with the scene's ``graph_overrides`` applied). A problem
+    in an override is reported at the scene file's line, one in the graph at the graph's."""
     reg = get_registry()
     out = []
-    overrides = scene.spec.graph_overrides
+    # a scene whose 'graph' is in error is compiled with the default graph: its overrides name
+    # nodes of the graph the user meant, so they are not checked against this one
+    overrides = {} if "graph" in scene.failed_fields else scene.spec.graph_overrides
     node_names = {n.name for n in graph.nodes}
     for oname in overrides:
         if oname not in node_names:
@@ -212,23 +233,52 @@ def _instantiate(graph: GraphSpec, scene: Scene, diags: list) -> list[tuple[Beha
         if issubclass(cls, ConstraintBehavior):
             params.setdefault("importance", cls.default_importance)
             params.setdefault("order", cls.default_order)
-        params.update(overrides.get(node.name, {}))
+        ov = overrides.get(node.name) or {}
+        params.update(ov)
         try:
             p = cls.ParamsModel.model_validate(params)
         except ValidationError as exc:
-            for d in pydantic_diagnostics(exc, graph.locations, node.path + ("params",), "",
-                                          f"{node.name}.params",
-                                          known_fields=cls.ParamsModel.model_fields):
-                diags.append(d)
+            diags.extend(_param_diagnostics(exc, cls, node, graph, scene, ov))
             continue
         out.append((cls(node.name, p), node))
     return out
 
 
+def _param_diagnostics(exc: ValidationError, cls, node: GraphNode, graph: GraphSpec,
+                       scene: Scene, ov: dict) -> list[Diagnostic]:
+    out = []
+    for loc, msg in pydantic_messages(exc, cls.ParamsModel.model_fields):
+        dotted = ".".join(str(x) for x in loc)
+        if (loc and loc[0] in ov) or (not loc and ov):
+            path = ("graph_overrides", node.name) + loc
+            out.append(scene.locations.diag(path, msg, field=f"graph_overrides.{node.name}"
+                                            + (f".{dotted}" if dotted else "")))
+        else:
+            out.append(graph.locations.diag(node.path + ("params",) + loc, msg,
+                                            field=f"{node.name}.params"
+                                            + (f".{dotted}" if dotted else "")))
+    return out
+
+
 def compile_scene(scene: Scene) -> Compiled:
-    """Compile a loaded scene into a Schedule and a Model (raises InputError/GraphError)."""
+    """Compile a loaded scene into a Schedule and a Model (raises InputError/GraphError).
+
+    Every check runs even after a problem is found (the graph's, the components', then binding),
+    so that one pass reports every problem; a scene loaded with ``partial=True`` adds its own
+    diagnostics, and the problems that only follow from a part of it that failed to load (an
+    element left out, a component in error) are dropped. Raises once, with all of them.
+    """
     diags: list[Diagnostic] = []
-    graph = load_graph(scene.spec.graph, scene.base_dir, scene.locations)
+    # a spec changed after validation (bench sweeps use model_copy) is checked again here
+    rate = scene.spec.frames.fps * scene.spec.substeps
+    if not (0 < rate <= MAX_STEP_RATE) or scene.spec.substeps < 1:
+        _raise(scene, [scene.locations.diag(("substeps",), f"fps * substeps = {rate:g} substeps "
+                                            f"per second: must be in (0, {MAX_STEP_RATE:g}] "
+                                            f"with substeps >= 1", field="scene")])
+    try:
+        graph = load_graph(scene.spec.graph, scene.base_dir, scene.locations)
+    except InputError as exc:
+        _raise(scene, exc.diagnostics, graph_error=True)
     behaviors = _instantiate(graph, scene, diags)
     reg = get_registry()
 
@@ -245,8 +295,6 @@ def compile_scene(scene: Scene) -> Compiled:
                 diags.append(scene.locations.diag(("elements", el.index, "components", cname),
                                                   f"{cname} needs geometry", element=el.name,
                                                   field=cname))
-    if diags:
-        raise GraphError(diags)
 
     # ---- decide what each behavior binds to, prune what nobody needs
     kept: list[Bound] = []
@@ -355,10 +403,10 @@ def compile_scene(scene: Scene) -> Compiled:
                                           f"cycle in the behavior graph: "
                                           f"{' -> '.join([u for u, _ in cycle] + [cycle[0][0]])}"
                                           f" (members: {', '.join(members)})"))
+        _raise(scene, diags, graph_error=True)  # no order to bind in
     except nx.NetworkXNoCycle:
         pass
-    if diags:
-        raise GraphError(diags)
+    graph_error = bool(diags)
 
     stages: dict[str, list[Bound]] = {}
     for s in STAGES:
@@ -368,16 +416,28 @@ def compile_scene(scene: Scene) -> Compiled:
         stages[s] = [byname[n] for n in order]
 
     # ---- model and binding
-    model = build_model(scene)
+    model = _build_model(scene, diags)
     ctx = BindContext(model, scene)
-    for b in [x for s in STAGES for x in stages[s]]:
-        try:
-            b.data = b.behavior.bind(ctx, b.elements)
-        except InputError as exc:
-            ctx.diagnostics.extend(exc.diagnostics)
-        model.data[b.behavior.name] = b.data
-    if ctx.diagnostics:
-        raise InputError(ctx.diagnostics)
+    # with problems already found, what is bound may be inconsistent (a behavior whose
+    # parameters failed is missing): a failure of bind then only follows from those problems
+    lenient = bool(diags or scene.diagnostics)
+    try:
+        for b in [x for s in STAGES for x in stages[s]]:
+            try:
+                b.data = b.behavior.bind(ctx, b.elements)
+            except InputError as exc:
+                ctx.diagnostics.extend(exc.diagnostics)
+            except Exception:  # noqa: BLE001 - see above; without earlier problems it is a bug
+                if not lenient:
+                    raise
+                b.data = None
+            model.data[b.behavior.name] = b.data
+    finally:
+        clear_bind_caches()
+    diags.extend(ctx.diagnostics)
+    diags.extend(output_diagnostics(scene))
+    if diags or scene.diagnostics:
+        _raise(scene, diags, graph_error=graph_error)
     # a constraint type whose elements yield no constraints (e.g. shear with no shear stiffness)
     for s in STAGES:
         for b in list(stages[s]):
@@ -393,11 +453,102 @@ def compile_scene(scene: Scene) -> Compiled:
     return Compiled(scene, schedule, model)
 
 
+def output_diagnostics(scene) -> list:
+    """Problems of ``output.elements`` (unknown names, elements without geometry), located at
+    the scene's lines; compile and ``lokigraph validate`` report them with everything else."""
+    names = scene.spec.output.elements
+    if names is None:
+        return []
+    by_name = {e.name: e for e in scene.elements}
+    diags = []
+    for i, n in enumerate(names):
+        el = by_name.get(n)
+        where = ("output", "elements", i)
+        if el is None:
+            near = difflib.get_close_matches(str(n), list(by_name), n=1, cutoff=0.6)
+            diags.append(scene.locations.diag(
+                where, f"unknown element {n!r}" + (f"; did you mean {near[0]!r}?" if near
+                                                   else ""), field="output.elements"))
+        elif el.geometry is None or el.vertex_count == 0:
+            diags.append(scene.locations.diag(where, "element has no geometry to write",
+                                              element=n, field="output.elements"))
+    return diags
+
+
+def _raise(scene: Scene, found: list[Diagnostic], graph_error: bool = False):
+    """Raise once with the scene's own diagnostics and those found by compile, minus the
+    spurious ones, each at the most precise place of the user's file."""
+    found = [_refine(d, scene) for d in found if not _spurious(d, scene)]
+    every = list(scene.diagnostics) + found
+    if not every:  # pragma: no cover - only spurious ones: the scene's own explain them
+        every = list(found)
+    if graph_error and not scene.diagnostics:
+        raise GraphError(every)
+    raise InputError(every)
+
+
+def _spurious(d: Diagnostic, scene: Scene) -> bool:
+    """True for a compile diagnostic that only follows from a part of the scene that failed to
+    load (and was reported): an element left out, a component in error on its element."""
+    for name, parts in scene.failed.items():
+        if "*" in parts:
+            if d.element == name or f"'{name}'" in d.message or f'"{name}"' in d.message:
+                return True
+        elif d.element == name and any(p and (p in d.message or d.field.split(".")[0] == p)
+                                       for p in parts):
+            return True
+    return False
+
+
+def _refine(d: Diagnostic, scene: Scene) -> Diagnostic:
+    """A diagnostic placed at its element's first line (``ctx.error``) moves to the field it
+    names (``CollisionGroup.members`` -> the line of ``members``, or of the list item the
+    message quotes)."""
+    if not d.field or d.file != scene.file:
+        return d
+    el = next((e for e in scene.elements if e.name == d.element), None)
+    if el is None or (d.line, d.column) not in ((el.line, el.column), (el.line, 0), (0, 0)):
+        return d
+    parts: list = [int(p) if p.isdigit() else p for p in d.field.split(".")]
+    if parts[0] in el.components:
+        parts = ["components"] + parts
+    path = ("elements", el.index) + tuple(parts)
+    value = _lookup(scene.raw, path)
+    if isinstance(value, list):  # point at the item the message quotes
+        for i, item in enumerate(value):
+            if isinstance(item, (str, int)) and not isinstance(item, bool) and (
+                    repr(item) in d.message):
+                path = path + (i,)
+                break
+    line, col = scene.locations.get(path)
+    if not line:
+        return d
+    return Diagnostic(file=d.file, line=line, column=col, element=d.element, field=d.field,
+                      message=d.message)
+
+
+def _lookup(data, path: tuple):
+    for p in path:
+        try:
+            data = data[p]
+        except (KeyError, IndexError, TypeError):
+            return None
+    return data
+
+
 def build_model(scene: Scene) -> Model:
     """Global vertex numbering, masses (from components with a ``particle_role``)."""
+    diags: list[Diagnostic] = []
+    model = _build_model(scene, diags)
+    if diags:
+        raise InputError(diags)
+    return model
+
+
+def _build_model(scene: Scene, diags: list) -> Model:
+    """:func:`build_model` that reports its problems into ``diags`` and still returns a model."""
     offset = 0
     qs, rest, qd, mass, kin, elem, comp_k = [], [], [], [], [], [], []
-    diags = []
     for el in scene.elements:
         if el.geometry is None:
             continue
@@ -422,7 +573,14 @@ def build_model(scene: Scene) -> Model:
                     diags.extend(exc.diagnostics)
                     m = np.ones(n)
         qs.append(el.geometry.points)
-        r = el.geometry.channels.get(_rest_channel(el))
+        rname = _rest_channel(el)
+        r = el.geometry.channels.get(rname)
+        if r is not None and np.size(r) != 3 * n:
+            diags.append(Diagnostic(file=el.source_file, line=el.line, column=el.column,
+                                    element=el.name, field=f"channels.{rname}",
+                                    message=f"rest positions channel {rname!r} holds "
+                                            f"{np.size(r)} values, not 3 per vertex ({3 * n})"))
+            r = None
         rest.append(np.asarray(r, dtype=np.float64).reshape(n, 3) if r is not None
                     else el.geometry.points)
         qd.append(v0)
@@ -437,8 +595,6 @@ def build_model(scene: Scene) -> Model:
                                     message=f"{int((m <= 0).sum())} vertices with zero mass "
                                             f"(first at vertex {bad}); isolated vertices need "
                                             f"an edge, triangle or tetrahedron, or point_mass"))
-    if diags:
-        raise InputError(diags)
     cat = lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape)  # noqa: E731
     q0 = cat(qs, (0, 3)).astype(np.float64)
     m = cat(mass, (0,)).astype(np.float64)
@@ -449,7 +605,18 @@ def build_model(scene: Scene) -> Model:
     kc = cat(comp_k, (0,)).astype(np.float64)
     h = 1.0 / (scene.spec.frames.fps * scene.spec.substeps)
     compliant = k & (kc > 0)
-    inv[compliant] = 1.0 / (kc[compliant] * h * h)
+    with np.errstate(over="ignore", under="ignore", divide="ignore"):
+        inv[compliant] = 1.0 / (kc[compliant] * h * h)
+    bad = compliant & ~np.isfinite(inv)
+    if bad.any():  # K V h^2 underflows: a stiffness too small to mean anything
+        elem_of = cat(elem, (0,)).astype(np.int64)
+        el = scene.elements[int(elem_of[int(np.argmax(bad))])]
+        diags.append(Diagnostic(file=el.source_file, line=el.line, column=el.column,
+                                element=el.name, field="Kinematic.stiffness",
+                                message=f"{int(bad.sum())} vertices have a compliant stiffness so "
+                                        f"small that K * area * h^2 is 0 at this time step; use "
+                                        f"0 (not compliant) or a larger value"))
+        inv[bad] = 0.0
     return Model(particle_count=len(q0), particle_q0=q0, particle_rest=cat(rest, (0, 3)).copy(),
                  particle_qd0=cat(qd, (0, 3)).astype(np.float64), particle_mass=m,
                  particle_inv_mass=inv, particle_kinematic=k, particle_compliant=compliant,

@@ -2,27 +2,27 @@
 
 A component is a pydantic model. Every field's description carries its SI unit. A field that may
 be painted per vertex is typed :data:`Paintable`: a scalar, the name of a channel on the element's
-geometry, or ``{file: path}`` (a ``.npy`` or text file with one value per vertex).
+geometry, ``{file: path}`` (a ``.npy`` or text file with one value per vertex), ``{vertices:
+[...], value: v, default: d}``, ``{select: SELECTION, value: v, default: d}`` (see
+:mod:`lokigraph.selection`) or ``{attribute: color, component: 0, remap: {from: [0, 1], to: [a,
+b]}}`` (a mesh vertex attribute or colour).
 A missing component means the behavior's documented default.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Annotated, ClassVar, Union
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, ValidationError
+from pydantic.types import FiniteFloat
 
 from .errors import Diagnostic
-
-
-MAX_INDEX = 2**31 - 1
-"""Largest vertex index accepted anywhere in a scene (indices are int64 internally; this bound
-keeps every index arithmetic far from overflow and is checked by validation, not at run time)."""
-
-VertexIndex = Annotated[int, Field(ge=0, le=MAX_INDEX)]
-"""A 0-based vertex index as written in a scene file."""
+from .selection import (MAX_INDEX, MapAttribute, MapSelection, Selection,  # noqa: F401
+                        SelectionError, VertexIndex, map_from_attribute, map_from_selection,
+                        resolve_selection)
 
 
 class MapFile(BaseModel):
@@ -35,20 +35,70 @@ class MapFile(BaseModel):
 class MapVertices(BaseModel):
     """A per-vertex map painted by listing vertices: ``value`` on them, ``default`` elsewhere."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
     vertices: list[VertexIndex] = Field(description="Vertex indices (0-based).")
     value: float = Field(1.0, description="Value on the listed vertices.")
     default: float = Field(0.0, description="Value on every other vertex.")
 
 
-Paintable = Union[float, str, MapFile, MapVertices]
-"""A scalar, a channel name, ``{file: ...}`` or ``{vertices: [...], value: v, default: d}``."""
+_MAP_KEYS = (("file", "MapFile"), ("vertices", "MapVertices"), ("select", "MapSelection"),
+             ("attribute", "MapAttribute"))
+#: names pydantic puts in error locations for the members of a Paintable (hidden in messages)
+UNION_TAGS = frozenset({"float", "str", "list", "MapFile", "MapVertices", "MapSelection",
+                        "MapAttribute", "Selection"})
+
+
+def _paintable_kind(v):
+    if isinstance(v, BaseModel):
+        return type(v).__name__
+    if isinstance(v, bool):
+        return None
+    if isinstance(v, (int, float)):
+        return "float"
+    if isinstance(v, str):
+        return "str"
+    if isinstance(v, dict):
+        for key, tag in _MAP_KEYS:
+            if key in v:
+                return tag
+    return None
+
+
+Paintable = Annotated[
+    Union[Annotated[FiniteFloat, Tag("float")], Annotated[str, Tag("str")],
+          Annotated[MapFile, Tag("MapFile")], Annotated[MapVertices, Tag("MapVertices")],
+          Annotated[MapSelection, Tag("MapSelection")],
+          Annotated[MapAttribute, Tag("MapAttribute")]],
+    Discriminator(_paintable_kind, custom_error_type="paintable",
+                  custom_error_message="expected a number, a channel name, {file: ...}, "
+                  "{vertices: [...]}, {select: ...} or {attribute: ...}")]
+"""A per-vertex value: a (finite) scalar, a channel name, ``{file: ...}``, ``{vertices: [...],
+value: v, default: d}``, ``{select: SELECTION, value: v, default: d}`` or ``{attribute: NAME,
+component: k, remap: {from: [a, b], to: [c, d]}}``."""
+
+
+def _channel_kind(v):
+    k = _paintable_kind(v)
+    return k if k in ("MapFile", "MapVertices", "MapSelection", "MapAttribute") else None
+
+
+ChannelSpec = Annotated[
+    Union[Annotated[MapFile, Tag("MapFile")], Annotated[MapVertices, Tag("MapVertices")],
+          Annotated[MapSelection, Tag("MapSelection")],
+          Annotated[MapAttribute, Tag("MapAttribute")]],
+    Discriminator(_channel_kind, custom_error_type="channel",
+                  custom_error_message="a channel is {file: ...}, {vertices: [...]}, "
+                  "{select: ...} or {attribute: ...}")]
+"""A painted channel of an element (``channels: {NAME: ...}``): a map file, listed vertices, a
+selection or a mesh attribute (see :data:`Paintable`)."""
 
 
 class Component(BaseModel):
     """Base class of all components. Subclasses set ``type_id`` implicitly by their class name."""
 
-    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False)
+    # NaN and infinities are never a meaningful parameter value: rejected in every float field
+    model_config = ConfigDict(extra="forbid", validate_assignment=True, frozen=False,
+                              allow_inf_nan=False)
 
     #: element kinds this component may be attached to (None = any)
     applies_to: ClassVar[tuple[str, ...] | None] = None
@@ -94,6 +144,15 @@ def resolve_paintable(value, element, field_name: str = "") -> np.ndarray:
         path = Path(element.base_dir) / value.file
         arr = load_map_file(path, n, element, field_name)
         return arr
+    if isinstance(value, (MapSelection, MapAttribute)):
+        try:
+            if isinstance(value, MapSelection):
+                return map_from_selection(value, element.geometry)
+            return map_from_attribute(value, element.geometry)
+        except SelectionError as exc:
+            raise InputError(Diagnostic(file=element.source_file, line=element.line,
+                                        column=element.column, element=element.name,
+                                        field=field_name, message=str(exc))) from None
     raise TypeError(f"not a paintable value: {value!r}")
 
 
@@ -106,6 +165,12 @@ def load_map_file(path: Path, n: int, element, field_name: str) -> np.ndarray:
 
     if not path.exists():
         fail(f"map file not found: {path}")
+    if not path.is_file():
+        fail(f"map file {path} is not a regular file")
+    # a text map holds at most ~40 bytes a value; a .npy its header plus 8 bytes a value
+    limit = 1024 + 64 * max(n, 1)
+    if path.stat().st_size > limit:
+        fail(f"map file {path} is {path.stat().st_size} bytes, too large for {n} values")
     try:
         arr = np.load(path) if path.suffix == ".npy" else np.loadtxt(path, dtype=np.float64)
     except Exception as exc:  # noqa: BLE001 - reported to the user with the file name
@@ -119,6 +184,7 @@ def load_map_file(path: Path, n: int, element, field_name: str) -> np.ndarray:
 
 
 _MESSAGES = {
+    "finite_number": "must be a finite number (got {input})",
     "greater_than": "must be > {gt} (got {input})",
     "greater_than_equal": "must be >= {ge} (got {input})",
     "less_than": "must be < {lt} (got {input})",
@@ -128,34 +194,80 @@ _MESSAGES = {
 }
 
 
-def pydantic_diagnostics(exc: ValidationError, locs, base_path: tuple, element: str,
-                         model_name: str, known_fields=None, element_for=None) -> list[Diagnostic]:
-    """Turn a pydantic ValidationError into located diagnostics.
+_TYPE_WORDS = {
+    "dict_type": "must be a mapping ({key: value})",
+    "model_type": "must be a mapping ({key: value})",
+    "model_attributes_type": "must be a mapping ({key: value})",
+    "list_type": "must be a list",
+    "tuple_type": "must be a list",
+    "string_type": "must be text",
+    "bool_type": "must be true or false",
+    "bool_parsing": "must be true or false",
+}
 
-    For a union (Paintable) pydantic reports one error per member; we keep the most telling one.
+
+def _plain_words(etype: str, msg: str) -> str:
+    """pydantic's wording ('Input should be a valid dictionary or instance of Frames') without
+    Python class names."""
+    if etype in _TYPE_WORDS:
+        return _TYPE_WORDS[etype]
+    msg = re.sub(r" or instance of \w+", "", msg)
+    return re.sub(r"^Input should be a valid dictionary", "must be a mapping ({key: value})", msg)
+
+
+def _nested_keys() -> list[str]:
+    from . import selection as S
+
+    keys = []
+    for m in (S.Selection, S.Box, S.Sphere, S.Plane, S.MapSelection, S.MapAttribute, MapFile,
+              MapVertices):
+        keys.extend(m.model_fields)
+    return sorted(set(keys) | {"from", "to", "clamp"})
+
+
+def pydantic_messages(exc: ValidationError, known_fields=None) -> list[tuple[tuple, str]]:
+    """(location, message) of every error of ``exc``, in plain words (no raw Python).
+
+    For a union (Paintable) pydantic reports one error per member; we keep the most telling
+    one, and drop the member names from locations.
     """
     import difflib
 
-    out: list[Diagnostic] = []
+    out: list[tuple[tuple, str]] = []
     seen: set[tuple] = set()
     for err in exc.errors():
         loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and (
-            p in ("float", "str", "MapFile", "MapVertices") or p.startswith("function-"))))
-        key = loc
-        if key in seen:
+            p in UNION_TAGS or p.startswith("function-"))))
+        if loc in seen:
             continue
-        seen.add(key)
+        seen.add(loc)
         etype = err["type"]
         template = _MESSAGES.get(etype)
         ctx = {k: (f"{v:g}" if isinstance(v, float) else v)
                for k, v in dict(err.get("ctx") or {}).items()}
         ctx["input"] = err.get("input")
-        msg = template.format(**ctx) if template else err["msg"]
+        try:
+            msg = template.format(**ctx) if template else err["msg"]
+        except (KeyError, IndexError, ValueError):
+            msg = err["msg"]
         if etype == "value_error" and msg.startswith("Value error, "):
             msg = msg[len("Value error, "):]
-        if etype == "extra_forbidden" and known_fields and loc:
-            near = difflib.get_close_matches(str(loc[-1]), list(known_fields), n=1)
+        msg = _plain_words(etype, msg)
+        if etype == "extra_forbidden" and loc:
+            # a key of the model itself, or (nested) of a selection / painted map
+            vocab = list(known_fields or ()) + (_nested_keys() if len(loc) > 1 else [])
+            near = difflib.get_close_matches(str(loc[-1]), vocab, n=1)
             msg = f"unknown key {loc[-1]!r}" + (f"; did you mean {near[0]!r}?" if near else "")
+        out.append((loc, msg))
+    return out
+
+
+def pydantic_diagnostics(exc: ValidationError, locs, base_path: tuple, element: str,
+                         model_name: str, known_fields=None, element_for=None) -> list[Diagnostic]:
+    """Turn a pydantic ValidationError into located diagnostics (see :func:`pydantic_messages`).
+    """
+    out: list[Diagnostic] = []
+    for loc, msg in pydantic_messages(exc, known_fields):
         field = model_name + ("." + ".".join(str(p) for p in loc) if loc else "")
         el = element
         if element_for is not None:

@@ -101,6 +101,16 @@ class SimulationError(LokigraphError):
         super().__init__((", ".join(parts) + ": " if parts else "") + message)
 
 
+class OutputError(LokigraphError):
+    """The output location is unusable: exit 2 when known before running (``--out`` is a file, a
+    folder that cannot be created or written, another run's frames in the way), exit 3 when a
+    write fails during the run (disk full, permission lost). Frames written before it are kept."""
+
+    def __init__(self, message: str, exit_code: int = EXIT_INPUT):
+        self.exit_code = exit_code
+        super().__init__(message)
+
+
 @dataclass
 class DiagnosticList:
     """Collects diagnostics during validation; ``raise_if_any`` raises once with all of them."""

@@ -20,14 +20,27 @@ UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "km": 1000.0, "in": 0.0254, "ft": 0.
 class Geometry:
     """A simplicial complex.
 
-    points: vertex positions [m], shape (vertex_count, 3).
+    points: vertex positions [m], shape (n, 3).
     edges: (E, 2) int64, curve edges (hair) or explicit 1-simplices.
     triangles: (T, 3) int64.
     tetrahedra: (K, 4) int64.
     channels: name -> per-vertex array (n,) or (n, k) (rest positions, painted maps, mesh
-        attributes and colours read from files).
-    groups: name -> sorted unique int64 vertex indices: named vertex sets (OBJ groups, sets that
-        generators document such as grid sides and strand roots), selectable by name.
+        attributes read from files). Colours read from files are ``color``, shape (n, 3), as
+        written in the file (OBJ ``v x y z r g b``, usually in [0, 1]) or scaled to [0, 1]
+        (PLY ``red green blue`` stored as integers).
+    groups: name -> sorted unique int64 vertex indices: named vertex sets (OBJ ``g``/``o``
+        groups: the vertices of that group's faces and lines; sets that generators document
+        such as grid sides and strand roots), selectable by name.
+    uv: texture coordinates [1], shape (U, 2), and tri_uv: for every triangle corner, its row
+        in ``uv``, shape (T, 3) int64. Texture coordinates are *face-varying*: one vertex on a
+        UV seam has several rows. A file with per-vertex coordinates (PLY ``s t``/``u v``)
+        gives ``uv`` of shape (n, 2) and ``tri_uv == triangles``. Both are empty (shapes
+        (0, 2) and (0, 3)) when the input had none; ``tri_uv`` is either empty or has one row
+        per triangle.
+    normals: unit normals [1], shape (M, 3), and tri_normals: each triangle corner's row in
+        ``normals``, shape (T, 3) int64, with the same face-varying layout as ``uv`` (a hard
+        edge has two rows per vertex). They record the input's normal layout; the writers
+        recompute the values from the written (deformed) positions.
     """
 
     points: np.ndarray
@@ -36,6 +49,10 @@ class Geometry:
     tetrahedra: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), np.int64))
     channels: dict[str, np.ndarray] = field(default_factory=dict)
     groups: dict[str, np.ndarray] = field(default_factory=dict)
+    uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    tri_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
+    normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    tri_normals: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.int64))
 
     @property
     def vertex_count(self) -> int:
@@ -51,31 +68,58 @@ class Geometry:
             return 1
         return 0
 
+    @property
+    def has_uv(self) -> bool:
+        """True when every triangle corner has a texture coordinate."""
+        return len(self.triangles) > 0 and self.tri_uv.shape == self.triangles.shape
+
+    @property
+    def has_normals(self) -> bool:
+        """True when every triangle corner has a normal row (the input carried normals)."""
+        return len(self.triangles) > 0 and self.tri_normals.shape == self.triangles.shape
+
+    def vertex_uv(self) -> np.ndarray | None:
+        """Per-vertex texture coordinates, shape (n, 2), or None when there are none or when a
+        vertex has different coordinates in different triangles (a UV seam). Vertices in no
+        triangle get 0."""
+        if not self.has_uv:
+            return None
+        out = np.zeros((self.vertex_count, 2))
+        out[self.triangles.ravel()] = self.uv[self.tri_uv.ravel()]
+        if not np.array_equal(out[self.triangles], self.uv[self.tri_uv], equal_nan=True):
+            return None
+        return out
+
     def copy(self) -> "Geometry":
         return Geometry(self.points.copy(), self.edges.copy(), self.triangles.copy(),
                         self.tetrahedra.copy(), {k: v.copy() for k, v in self.channels.items()},
-                        {k: v.copy() for k, v in self.groups.items()})
+                        {k: v.copy() for k, v in self.groups.items()}, self.uv.copy(),
+                        self.tri_uv.copy(), self.normals.copy(), self.tri_normals.copy())
 
     def problems(self) -> list[str]:
         """Sanity checks (non-finite points, out-of-range indices, degenerate simplices)."""
         out = []
         n = self.vertex_count
-        bad = ~np.all(np.isfinite(self.points), axis=1)
-        if bad.any():
-            out.append(f"{int(bad.sum())} vertices with non-finite coordinates "
-                       f"(first at vertex {int(np.argmax(bad))})")
+        if not np.isfinite(self.points.sum()):  # fast path: one pass when all are finite
+            bad = ~np.all(np.isfinite(self.points), axis=1)
+            if bad.any():
+                out.append(f"{int(bad.sum())} vertices with non-finite coordinates "
+                           f"(first at vertex {int(np.argmax(bad))})")
         for name, arr in (("edge", self.edges), ("triangle", self.triangles),
                           ("tetrahedron", self.tetrahedra)):
             if arr.size == 0:
                 continue
-            oor = np.any((arr < 0) | (arr >= n), axis=1)
-            if oor.any():
+            if arr.min() < 0 or arr.max() >= n:
+                oor = np.any((arr < 0) | (arr >= n), axis=1)
                 i = int(np.argmax(oor))
                 out.append(f"{int(oor.sum())} {name}s with vertex indices out of range "
                            f"[0, {n}) (first at {name} {i}: {arr[i].tolist()})")
                 continue
-            srt = np.sort(arr, axis=1)
-            rep = np.any(srt[:, 1:] == srt[:, :-1], axis=1)
+            k = arr.shape[1]
+            rep = np.zeros(len(arr), bool)
+            for a in range(k):  # loop over the k(k-1)/2 column pairs, vectorised over rows
+                for b in range(a + 1, k):
+                    rep |= arr[:, a] == arr[:, b]
             if rep.any():
                 i = int(np.argmax(rep))
                 out.append(f"{int(rep.sum())} degenerate {name}s with a repeated vertex "
@@ -91,6 +135,15 @@ class Geometry:
         for name, arr in self.channels.items():
             if arr.shape[0] != n:
                 out.append(f"channel {name!r} has {arr.shape[0]} values, expected {n}")
+        for name, table, corners in (("texture coordinate", self.uv, self.tri_uv),
+                                     ("normal", self.normals, self.tri_normals)):
+            if corners.size == 0:
+                continue
+            if corners.shape != self.triangles.shape:
+                out.append(f"{name} corners: {corners.shape[0]} rows, expected one per triangle "
+                           f"({len(self.triangles)})")
+            elif corners.min() < 0 or corners.max() >= len(table):
+                out.append(f"{name} indices out of range [0, {len(table)})")
         return out
 
 
@@ -109,8 +162,9 @@ def rotation_matrix_xyz(degrees) -> np.ndarray:
 def apply_transform(points: np.ndarray, scale=1.0, rotate=(0, 0, 0), translate=(0, 0, 0),
                     units: str = "m") -> np.ndarray:
     """Convert file ``units`` to metres, then scale, rotate (XYZ degrees), translate [m]."""
-    out = points * (UNITS[units] * np.asarray(scale, dtype=np.float64))
-    out = out @ rotation_matrix_xyz(rotate).T
+    with np.errstate(invalid="ignore", over="ignore"):  # non-finite input: problems() says so
+        out = points * (UNITS[units] * np.asarray(scale, dtype=np.float64))
+        out = out @ rotation_matrix_xyz(rotate).T
     return out + np.asarray(translate, dtype=np.float64)
 
 
@@ -131,8 +185,14 @@ def boundary_triangles(tets: np.ndarray) -> np.ndarray:
 
 def triangle_areas(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
     """Area of every triangle [m^2], shape (T,)."""
-    P = points[tris]
-    return 0.5 * np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1)
+    p0, p1, p2 = points[tris[:, 0]], points[tris[:, 1]], points[tris[:, 2]]
+    a = p1 - p0
+    b = p2 - p0
+    # the cross product by components, in np.cross's order of operations (bitwise equal)
+    cx = a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1]
+    cy = a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2]
+    cz = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+    return 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
 
 
 def vertex_measure(geo: Geometry, points: np.ndarray | None = None) -> np.ndarray:

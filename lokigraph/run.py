@@ -1,16 +1,34 @@
 """The run loop: substeps through the schedule, the non-finite guard, frame output, run.json.
 
-Frames are written atomically (temporary file + rename), so a failing run keeps every frame
-already written and never leaves a half-written file; ``run.json`` is written at the end of a
-run, successful or not, with the scene, versions, per-frame timings and solver statistics.
+Output goes to ``DIR/<element>/<frame:04d>.<ext>`` and ``DIR/run.json``. Before simulating, the
+output location is checked: ``DIR`` and every element folder must be (or become) writable folders
+(a write probe), and ``DIR`` must not hold another run's output (a ``run.json``, or frame files
+``NNNN.obj|ply|vtu`` in a sub-folder) unless ``overwrite`` is set, in which case that run's
+``run.json`` and frame files are removed first, so the folder always describes exactly one run.
+Those problems raise :class:`~lokigraph.errors.OutputError` with exit code 2, before any frame is
+simulated; a write failure during the run (disk full, permission lost) raises it with exit code 3.
+
+Frames are written atomically: each file is written to a hidden temporary
+``.<name>.tmp-<pid>`` (never ending in the format's extension, so a ``*.obj`` glob cannot pick
+it up) and renamed into place; stale temporaries of that pattern are removed at the start.
+SIGINT (Ctrl-C) and SIGTERM stop a run cleanly: the signal is deferred while a frame is being
+written, so every frame present is complete and present for every written element, and frames
+are contiguous. ``run.json`` is written at the end of every run, with ``status`` ``ok``,
+``failed`` (simulation or write error, or a bug) or ``interrupted``, the scene, versions, output
+settings, per-frame timings and solver statistics.
 """
 
 from __future__ import annotations
 
+import contextlib
+import inspect
 import json
 import os
 import platform
+import re
+import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,35 +37,276 @@ import numpy as np
 
 from . import __version__
 from .behavior import STAGES, StepContext
-from .compile import Compiled
-from .errors import InputError, SimulationError
-from .geometry import write_mesh
+from .compile import Compiled, output_diagnostics
+from .errors import EXIT_SIMULATION, InputError, OutputError, SimulationError
+from .meshfile import write_mesh
 from .model import Control, State
+
+FORMATS = ("obj", "ply", "vtu")
+#: a frame file written by a run: ``0007.obj``, ``-001.ply``
+FRAME_RE = re.compile(r"^-?\d+\.(obj|ply|vtu)$")
+#: our temporaries: ``.0007.obj.tmp-123`` (and the older ``.0007.obj.tmp123.obj``)
+TEMP_RE = re.compile(r"^\..+\.tmp-?(\d+)(\.[A-Za-z0-9]+)?$")
+
+
+def temp_path(path: Path) -> Path:
+    """The hidden temporary a write of ``path`` goes through (does not end in its extension)."""
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
 
 
 def atomic_write(path: Path, writer) -> None:
-    """Call ``writer(tmp_path)`` then rename onto ``path`` (same folder, so the rename is atomic)."""
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}{path.suffix}")
+    """Call ``writer(tmp_path)`` then rename onto ``path`` (same folder, so the rename is atomic).
+
+    The temporary is removed on any failure; ``OSError`` from the writer or the rename propagates.
+    """
+    tmp = temp_path(path)
     try:
         writer(tmp)
         os.replace(tmp, path)
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+
+
+class RunInterrupted(KeyboardInterrupt):
+    """A run stopped by SIGINT or SIGTERM (a KeyboardInterrupt, so Ctrl-C handling still works).
+
+    ``signum`` is the signal; the CLI exits with ``128 + signum`` (130 for Ctrl-C, 143 for
+    SIGTERM).
+    """
+
+    def __init__(self, signum: int = signal.SIGINT):
+        self.signum = int(signum)
+        super().__init__(signal.Signals(self.signum).name)
+
+
+def _raise_interrupted(signum, _frame):
+    raise RunInterrupted(signum)
+
+
+class _Signals:
+    """SIGINT/SIGTERM during a run raise :class:`RunInterrupted`, at once while simulating and
+    at the end of a ``deferred()`` block (a frame's writes, run.json). Previous handlers are
+    restored on exit. Ignored signals stay ignored; handlers are only installed in the main
+    thread."""
+
+    def __init__(self):
+        self.critical = 0
+        self.pending: int | None = None
+        self.old: dict = {}
+
+    def _handle(self, signum, _frame):
+        if self.critical:
+            self.pending = self.pending or signum
+            return
+        raise RunInterrupted(signum)
+
+    def __enter__(self):
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            cur = signal.getsignal(sig)
+            if cur is signal.SIG_IGN or cur is None:
+                continue
+            self.old[sig] = cur
+            signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        for sig, h in self.old.items():
+            signal.signal(sig, h)
+        self.old.clear()
+        return False
+
+    @contextlib.contextmanager
+    def deferred(self):
+        self.critical += 1
+        try:
+            yield
+        finally:
+            self.critical -= 1
+        if not self.critical and self.pending is not None:
+            sig, self.pending = self.pending, None
+            raise RunInterrupted(sig)
+
+
+def _reason(exc: OSError) -> str:
+    return exc.strerror or str(exc)
 
 
 def output_elements(compiled: Compiled) -> list:
-    """Elements written per frame: dynamic ones, plus any a behavior marks (compliant surfaces)."""
+    """Elements written per frame.
+
+    Default: dynamic ones, plus any a behavior marks (compliant surfaces), plus every kinematic
+    (animated or static) element with geometry when ``output.kinematic`` is true.
+    ``output.elements`` names them explicitly instead (still adding the kinematic ones when
+    ``kinematic`` is true). Unknown names and elements without geometry raise InputError.
+    """
+    scene = compiled.scene
+    ospec = scene.spec.output
+    diags = output_diagnostics(scene)
+    if diags:
+        raise InputError(diags)
+    chosen = None if ospec.elements is None else set(ospec.elements)
     m = compiled.model
     out = []
-    for el in compiled.scene.elements:
+    for el in scene.elements:
         if el.geometry is None or el.vertex_count == 0:
             continue
         sl = el.vertex_slice
-        dynamic = not m.particle_kinematic[sl].all() or m.particle_compliant[sl].any()
-        if dynamic or any(getattr(type(c), "write_output", False) for c in el.components.values()):
+        is_kin = bool(m.particle_kinematic[sl].all())
+        dynamic = not is_kin or m.particle_compliant[sl].any()
+        marked = dynamic or any(getattr(type(c), "write_output", False)
+                                for c in el.components.values())
+        take = marked if chosen is None else el.name in chosen
+        if take or (ospec.kinematic and is_kin):
             out.append(el)
     return out
+
+
+def _input_dirs(compiled: Compiled) -> set[Path]:
+    """Folders the scene reads meshes from (never cleared by ``overwrite``)."""
+    dirs = set()
+    for el in compiled.scene.elements:
+        spec = el.spec
+        if spec is None:
+            continue
+        for pattern in (spec.file, spec.sequence):
+            if pattern:
+                with contextlib.suppress(OSError, ValueError, RuntimeError):
+                    dirs.add((Path(el.base_dir) / os.path.dirname(pattern)).resolve())
+    return dirs
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return False  # ours: a leftover of this process is stale by definition
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError, OSError):
+        return True
+    return True
+
+
+def _clean_temps(folder: Path) -> None:
+    """Remove stale temporaries of our pattern (a killed run's), not those of a live process."""
+    with contextlib.suppress(OSError), os.scandir(folder) as it:
+        for e in it:
+            mt = TEMP_RE.match(e.name)
+            if mt and e.is_file(follow_symlinks=False) and not _pid_alive(int(mt.group(1))):
+                with contextlib.suppress(OSError):
+                    os.unlink(e.path)
+
+
+def previous_run(out: Path) -> dict:
+    """Another run's output in ``out``: ``run.json`` (if any) and frame files per sub-folder."""
+    found = {"run_json": (out / "run.json").exists(), "frames": {}}
+    with contextlib.suppress(FileNotFoundError, NotADirectoryError), os.scandir(out) as it:
+        for e in it:
+            if not e.is_dir(follow_symlinks=False):
+                continue
+            try:
+                with os.scandir(e.path) as sub:
+                    files = [f.path for f in sub if FRAME_RE.match(f.name)
+                             and f.is_file(follow_symlinks=False)]
+            except OSError:
+                continue
+            if files:
+                found["frames"][e.name] = sorted(files)
+    return found
+
+
+def _describe(prev: dict) -> str:
+    parts = []
+    if prev["run_json"]:
+        parts.append("run.json")
+    for name, files in sorted(prev["frames"].items()):
+        parts.append(f"{len(files)} frame{'s' if len(files) != 1 else ''} in {name}/")
+    return ", ".join(parts)
+
+
+def prepare_output(out: Path, names: list[str], overwrite: bool = False,
+                   protected: set[Path] = frozenset()) -> dict:
+    """Check and create the output folders before simulating; returns what was replaced.
+
+    Raises OutputError (exit 2) when ``out`` or an element folder is a file, cannot be created or
+    written, or ``out`` holds another run's output and ``overwrite`` is false.
+    """
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"output folder {out} is a file; give a folder (--out DIR or "
+                          f"output.dir)")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create output folder {out}: {_reason(exc)}") from None
+    _clean_temps(out)
+    prev = previous_run(out)
+    replaced = {"run_json": False, "frame_files": 0}
+    if prev["run_json"] or prev["frames"]:
+        if not overwrite:
+            raise OutputError(f"output folder {out} holds another run's output "
+                              f"({_describe(prev)}); use --overwrite (or output: {{overwrite: "
+                              f"true}}) to replace it, or another --out")
+        for name in prev["frames"]:
+            d = out / name
+            with contextlib.suppress(OSError):
+                if d.resolve() in protected:
+                    raise OutputError(f"output folder {d} holds the scene's input meshes; "
+                                      f"choose another --out")
+        try:
+            if prev["run_json"]:
+                (out / "run.json").unlink()
+                replaced["run_json"] = True
+            for name, files in prev["frames"].items():
+                for f in files:
+                    os.unlink(f)
+                    replaced["frame_files"] += 1
+                _clean_temps(out / name)
+                if name not in names:
+                    with contextlib.suppress(OSError):
+                        (out / name).rmdir()  # only when empty
+        except OSError as exc:
+            raise OutputError(f"cannot replace the previous run in {out}: {exc.filename}: "
+                              f"{_reason(exc)}") from None
+    for name in names:
+        d = out / name
+        if d.exists() and not d.is_dir():
+            raise OutputError(f"element folder {d} is a file; remove it or choose another --out")
+        try:
+            d.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"cannot create element folder {d}: {_reason(exc)}") from None
+        _clean_temps(d)
+    for d in [out, *(out / n for n in names)]:
+        probe = temp_path(d / "write-probe")
+        try:
+            with open(probe, "wb") as fh:
+                fh.write(b"lokigraph")
+        except OSError as exc:
+            raise OutputError(f"cannot write in output folder {d}: {_reason(exc)}") from None
+        finally:
+            with contextlib.suppress(OSError):
+                probe.unlink(missing_ok=True)
+    return replaced
+
+
+def _accepts_velocities(fn) -> bool:
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        return False
+    return "velocities" in params or any(p.kind is inspect.Parameter.VAR_KEYWORD
+                                         for p in params.values())
+
+
+def _frame_span(frames: list[int]) -> str:
+    if not frames:
+        return "no frames"
+    if len(frames) == 1:
+        return f"frame {frames[0]}"
+    return f"frames {frames[0]}..{frames[-1]}"
 
 
 @dataclass
@@ -57,7 +316,21 @@ class RunResult:
     frame_seconds: list = field(default_factory=list)
     stats: list = field(default_factory=list)
     out_dir: Path | None = None
-    error: SimulationError | None = None
+    error: BaseException | None = None
+    status: str = "ok"
+    elements: list = field(default_factory=list)
+    format: str = "obj"
+    run_json_error: str | None = None
+
+    def summary(self) -> str:
+        """One line: what was written where, and run.json's status (the CLI prints it)."""
+        if self.out_dir is None:
+            return "nothing written"
+        text = (f"{_frame_span(self.frames_written)} of "
+                f"{', '.join(self.elements) or 'no element'} in {self.out_dir}")
+        if self.run_json_error:
+            return text + f"; run.json could not be written ({self.run_json_error})"
+        return text + f", run.json status {self.status}"
 
 
 class Simulation:
@@ -150,78 +423,136 @@ def _versions() -> dict:
 
 
 def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str | Path | None = None,
-        fmt: str | None = None, progress: bool | None = None, write: bool = True) -> RunResult:
+        fmt: str | None = None, progress: bool | None = None, write: bool = True,
+        overwrite: bool | None = None) -> RunResult:
     """Simulate from the scene's start frame to the last requested frame; write frames A..B.
 
-    Raises SimulationError after writing run.json (status "failed"); frames already written stay.
+    ``overwrite`` (default: the scene's ``output.overwrite``) replaces another run's output in
+    the folder. Raises InputError (bad ``frames`` or ``output.elements``) and OutputError (exit 2,
+    a bad output location) before simulating; after the run starts, SimulationError, OutputError
+    (exit 3, a write failure) and RunInterrupted (SIGINT/SIGTERM) are raised after run.json is
+    written with status "failed" or "interrupted"; frames already written stay. The exception
+    carries the :class:`RunResult` as ``.result``.
     """
     spec = compiled.scene.spec
     start, end = spec.frames.start, spec.frames.end
     a, b = frames if frames is not None else (start, end)
-    if a < start or b < a:
-        raise InputError(f"--frames {a}:{b} must lie within the scene's frames {start}:{end} "
-                         f"with A <= B")
+    if not start <= a <= b <= end:
+        raise InputError(f"--frames {a}:{b} is outside the scene's frame range {start}:{end} "
+                         f"(give A:B with {start} <= A <= B <= {end})")
     fmt = fmt or spec.output.format
+    if fmt not in FORMATS:
+        raise InputError(f"unknown output format {fmt!r} (one of {', '.join(FORMATS)})")
+    overwrite = bool(spec.output.overwrite if overwrite is None else overwrite)
     out = Path(out_dir if out_dir is not None else spec.output.dir)
-    sim = Simulation(compiled)
     outs = output_elements(compiled)
-    result = RunResult(sim.state, out_dir=out if write else None)
+    replaced = None
+    if write:
+        replaced = prepare_output(out, [el.name for el in outs], overwrite, _input_dirs(compiled))
+    sim = Simulation(compiled)
+    result = RunResult(sim.state, out_dir=out if write else None,
+                       elements=[el.name for el in outs], format=fmt)
     if progress is None:
         progress = sys.stderr.isatty()
-    if write:
-        out.mkdir(parents=True, exist_ok=True)
-        for el in outs:
-            (out / el.name).mkdir(exist_ok=True)
+    bar = _Progress(b - start) if progress else None
+    with_velocities = _accepts_velocities(write_mesh)
+    sigs = _Signals()
 
     def write_frame(frame: int) -> None:
         if not write:
             return
-        for el in outs:
-            pts = sim.state.particle_q[el.vertex_slice]
-            path = out / el.name / f"{frame:04d}.{fmt}"
-            atomic_write(path, lambda p: write_mesh(p, pts, el.geometry, fmt))
-        result.frames_written.append(frame)
+        with sigs.deferred():  # a signal waits until the frame is complete for every element
+            for el in outs:
+                sl = el.vertex_slice
+                pts = sim.state.particle_q[sl]
+                kw = {"velocities": sim.state.particle_qd[sl]} if with_velocities else {}
+                path = out / el.name / f"{frame:04d}.{fmt}"
+                try:
+                    atomic_write(path, lambda p: write_mesh(p, pts, el.geometry, fmt, **kw))
+                except OSError as exc:
+                    raise OutputError(f"cannot write {path}: {_reason(exc)}",
+                                      EXIT_SIMULATION) from None
+            result.frames_written.append(frame)
 
     t_start = time.perf_counter()
     record = []
-    if a == start:
-        write_frame(start)
-    try:
-        for frame in range(start + 1, b + 1):
-            t0 = time.perf_counter()
-            stats = sim.step_frame()
-            dt = time.perf_counter() - t0
-            result.frame_seconds.append(dt)
-            result.stats.append(stats)
-            record.append({"frame": frame, "seconds": dt, "stats": stats})
-            if frame >= a:
-                write_frame(frame)
-            if progress:
-                _progress(frame - start, b - start, time.perf_counter() - t_start)
-    except SimulationError as exc:
-        result.error = exc
-    finally:
-        if progress:
-            sys.stderr.write("\n")
-    if write:
-        info = {
-            "status": "ok" if result.error is None else "failed",
-            "error": None if result.error is None else str(result.error),
-            "scene_file": compiled.scene.file,
-            "scene": compiled.scene.raw,
-            "versions": _versions(),
-            "frames": {"start": start, "written": result.frames_written, "fps": spec.frames.fps,
-                       "substeps": spec.substeps},
-            "format": fmt,
-            "schedule": compiled.schedule.as_dict(),
-            "total_seconds": time.perf_counter() - t_start,
-            "per_frame": record,
-        }
-        atomic_write(out / "run.json", lambda p: p.write_text(json.dumps(info, indent=1,
-                                                                         default=_json_default)))
+    with sigs:
+        try:
+            if a == start:
+                write_frame(start)
+            for frame in range(start + 1, b + 1):
+                t0 = time.perf_counter()
+                stats = sim.step_frame()
+                dt = time.perf_counter() - t0
+                result.frame_seconds.append(dt)
+                result.stats.append(stats)
+                record.append({"frame": frame, "seconds": dt, "stats": stats})
+                if frame >= a:
+                    write_frame(frame)
+                if bar:
+                    bar.update(frame - start, time.perf_counter() - t_start)
+        except KeyboardInterrupt as exc:
+            result.status, result.error = "interrupted", exc
+        except (SimulationError, OutputError) as exc:
+            result.status, result.error = "failed", exc
+        except Exception as exc:  # a bug: still record the run, then let it propagate
+            result.status, result.error = "failed", exc
+        finally:
+            if bar:
+                bar.close()
+        if write:
+            try:
+                with sigs.deferred():  # signals wait until run.json is written
+                    _write_run_json(compiled, out, result, record, replaced, overwrite,
+                                    with_velocities, (a, b), time.perf_counter() - t_start)
+            except OSError as exc:
+                result.run_json_error = _reason(exc)
+                if result.error is None:
+                    result.status = "failed"
+                    result.error = OutputError(f"cannot write {out / 'run.json'}: "
+                                               f"{_reason(exc)}", EXIT_SIMULATION)
+            except KeyboardInterrupt:
+                pass  # a signal while writing run.json (now written): the run's status stands
     if result.error is not None:
+        with contextlib.suppress(AttributeError, TypeError):
+            result.error.result = result
         raise result.error
     return result
+
+
+def _write_run_json(compiled, out: Path, result: RunResult, record: list, replaced, overwrite,
+                    with_velocities: bool, requested: tuple[int, int], seconds: float) -> None:
+    spec = compiled.scene.spec
+    err = result.error
+    by = getattr(err, "signum", signal.SIGINT) if isinstance(err, KeyboardInterrupt) else None
+    if err is None:
+        text = None
+    elif by is not None:
+        text = f"interrupted by {signal.Signals(by).name}"
+    elif isinstance(err, (SimulationError, OutputError)):
+        text = str(err)
+    else:
+        text = f"internal error: {type(err).__name__}: {err}"
+    info = {
+        "status": result.status,
+        "error": text,
+        "interrupted_by": None if by is None else signal.Signals(by).name,
+        "scene_file": compiled.scene.file,
+        "scene": compiled.scene.raw,
+        "versions": _versions(),
+        "frames": {"start": spec.frames.start, "end": spec.frames.end,
+                   "requested": list(requested), "written": result.frames_written,
+                   "fps": spec.frames.fps, "substeps": spec.substeps},
+        "format": result.format,
+        "output": {"dir": str(out), "format": result.format, "elements": result.elements,
+                   "kinematic": spec.output.kinematic, "elements_requested": spec.output.elements,
+                   "overwrite": overwrite, "replaced": replaced, "velocities": with_velocities},
+        "schedule": compiled.schedule.as_dict(),
+        "total_seconds": seconds,
+        "per_frame": record,
+    }
+    data = json.dumps(info, indent=1, default=_json_default)
+    atomic_write(out / "run.json", lambda p: p.write_text(data))
 
 
 def _json_default(o):
@@ -232,11 +563,33 @@ def _json_default(o):
     return str(o)
 
 
-def _progress(done: int, total: int, elapsed: float) -> None:
-    width = 30
-    frac = done / max(total, 1)
-    bar = "#" * int(width * frac) + "-" * (width - int(width * frac))
-    eta = elapsed / max(frac, 1e-9) - elapsed
-    sys.stderr.write(f"\r[{bar}] {done}/{total} frames  {elapsed:6.1f}s elapsed  "
-                     f"eta {eta:6.1f}s")
-    sys.stderr.flush()
+class _Progress:
+    """A progress bar on a terminal; a plain line every few seconds otherwise (logs, pipes)."""
+
+    def __init__(self, total: int, every: float = 5.0):
+        self.total = max(total, 1)
+        self.tty = sys.stderr.isatty()
+        self.every = every
+        self.last = 0.0  # plain lines: none for runs shorter than ``every`` seconds
+        self.drawn = False
+        self.lines = False
+
+    def update(self, done: int, elapsed: float) -> None:
+        frac = done / self.total
+        eta = elapsed / max(frac, 1e-9) - elapsed
+        if self.tty:
+            width = 30
+            bar = "#" * int(width * frac) + "-" * (width - int(width * frac))
+            sys.stderr.write(f"\r[{bar}] {done}/{self.total} frames  {elapsed:6.1f}s elapsed  "
+                             f"eta {eta:6.1f}s")
+            self.drawn = True
+        elif elapsed - self.last >= self.every or (done == self.total and self.lines):
+            self.last, self.lines = elapsed, True
+            sys.stderr.write(f"{done}/{self.total} frames, {elapsed:.1f} s elapsed, "
+                             f"eta {eta:.1f} s\n")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.drawn:
+            sys.stderr.write("\n")
+            sys.stderr.flush()

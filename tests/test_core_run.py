@@ -53,6 +53,12 @@ def test_run_writes_frames_and_runjson(tmp_path):
     mesh = meshio.read(out / "cloth" / "0006.ply")
     assert mesh.points.shape == (289, 3)
     assert not list(out.rglob(".*tmp*"))  # no temporary files left behind
+    # the output settings are recorded; velocities reach the writer
+    assert info["output"]["format"] == "ply" and info["output"]["elements"] == ["cloth"]
+    assert info["output"]["overwrite"] is False and info["output"]["kinematic"] is False
+    assert info["output"]["velocities"] and mesh.point_data  # PLY holds velocities
+    assert info["frames"]["requested"] == [3, 6] and info["error"] is None
+    assert r.stdout.startswith("wrote frames 3..6 of cloth in ") and "status ok" in r.stdout
 
 
 @pytest.mark.parametrize("fmt", ["obj", "vtu"])

@@ -101,8 +101,8 @@ def test_mesh_with_out_of_range_index(scene_file, tmp_path):
     (tmp_path / "bad.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 9\n")
     p = scene_file(GOOD.replace("{generator: grid, params: {resolution: [4, 4]}}",
                                 "{file: bad.obj}"))
-    _check_cli(tmp_path, p, r'element "shirt", geometry: 1 triangles with vertex indices out of '
-                            r"range \[0, 3\) \(first at triangle 1")
+    _check_cli(tmp_path, p, r'scene\.yaml:5:\d+: element "shirt", geometry\.file: \S*bad\.obj:5: '
+                            r"vertex index 9 out of range \(the file has 3 vertices\)")
 
 
 def test_cycle(scene_file, tmp_path):
@@ -152,4 +152,20 @@ def test_bad_frames_argument(scene_file, tmp_path):
 
 def test_generator_bad_params(scene_file, tmp_path):
     p = scene_file(GOOD.replace("params: {resolution: [4, 4]}", "params: {resolutoin: [4, 4]}"))
-    _check_cli(tmp_path, p, r"generator 'grid': .*unexpected keyword argument 'resolutoin'")
+    err = _check_cli(tmp_path, p, r"scene\.yaml:5:\d+: .*unknown .*'resolutoin'")
+    assert "unexpected keyword argument" not in err and "grid()" not in err  # no raw Python
+
+
+def test_every_error_in_one_pass_at_user_lines(scene_file, tmp_path):
+    """Scene-level, component, compile (bind) and graph-override errors together, exit 2, each
+    at a line of the user's scene (never of the installed graphs/default.yaml)."""
+    p = scene_file(GOOD.replace("fps: 24", "fps: .nan")
+                   .replace("mass_density: 0.15", "mass_densty: 0.15")
+                   .replace("output: {dir: OUT}",
+                            "  - name: group\n    components: {CollisionGroup: {members: "
+                            "[shirt, nobody]}}\ngraph_overrides: {stretch: {importanc: 1}}\n"
+                            "output: {dir: OUT}"))
+    err = _check_cli(tmp_path, p, r"^4 errors:")
+    lines = re.findall(r"scene\.yaml:(\d+):\d+: ", err)
+    assert len(lines) == 4 and "default.yaml" not in err, err
+    assert "finite" in err and "'nobody'" in err and "'importanc'" in err and "mass_densty" in err

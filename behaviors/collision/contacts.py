@@ -664,9 +664,9 @@ def project_ee(p, x, w, rows, nrm, target, mu, strength, damping):
 
 
 class CollisionParams(ConstraintParams):
-    final_rounds: int = Field(2, ge=0, description="Final collision rounds (re-detection over "
+    final_rounds: int = Field(2, ge=0, le=1000, description="Final collision rounds (re-detection over "
                                                    "the solved motion, then contacts only).")
-    final_iterations: int = Field(4, ge=1, description="Contact passes per final round.")
+    final_iterations: int = Field(4, ge=1, le=10000, description="Contact passes per final round.")
 
 
 class CollisionConstraint(ConstraintBehavior):
