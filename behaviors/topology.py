@@ -2,8 +2,9 @@
 
 Everything here runs once, when a model is compiled: it turns the integer topology of a
 simplicial complex (triangles, curve edges, tetrahedra) into the constraint tuples that the
-projection kernels in :mod:`lokigraph.behaviors.nucleus_kernels` consume, and it colours those
-tuples so that a coloured Gauss-Seidel sweep can run in parallel.
+projection kernels (in the modules of :mod:`lokigraph.behaviors.materials` and
+:mod:`lokigraph.behaviors.attachments`) consume, and it colours those tuples so that a coloured
+Gauss-Seidel sweep can run in parallel.
 
 Conventions
 -----------

@@ -24,7 +24,7 @@ class Wind(Component):
     """A uniform wind with optional smooth deterministic gusts (noise), keyable.
 
     u(x, t) = speed * direction + gusts, gusts of RMS noise * speed with wavelengths up to
-    ``noise_scale`` (see :func:`lokigraph.behaviors.air_kernels.wind_velocity`).
+    ``noise_scale`` (see :func:`lokigraph.behaviors.air.kernels.wind_velocity`).
     """
 
     direction: Vec3 = Field((1.0, 0.0, 0.0), description="Wind direction (normalised).")

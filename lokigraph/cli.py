@@ -179,7 +179,7 @@ def _dispatch(args) -> int:
     if args.command == "stress":
         from pathlib import Path
 
-        from .stress import format_rows, run_stress
+        from .bench.stress import format_rows, run_stress
 
         try:
             rows = run_stress(args.quick, Path(args.out) if args.out else None, args.only,
@@ -255,7 +255,7 @@ def _os_message(exc: OSError) -> str:
 def _bench(args) -> int:
     from pathlib import Path
 
-    from .bench import format_table, make_reference, run_bench, run_scaling
+    from .bench.sweep import format_table, make_reference, run_bench, run_scaling
 
     out = Path(args.out)
     if args.scaling:

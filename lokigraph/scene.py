@@ -193,7 +193,8 @@ class Output(Strict):
 
 
 class Reference(Strict):
-    """Independent truth for ``lokigraph bench`` (``run`` ignores it); see lokigraph.references."""
+    """Independent truth for ``lokigraph bench`` (``run`` ignores it); see
+    lokigraph.bench.references."""
 
     kind: Literal["free_fall", "spring", "catenary", "elastica", "terminal_velocity", "stored"]
     element: str | None = Field(None, description="Element compared (default: the only dynamic "

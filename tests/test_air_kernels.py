@@ -1,4 +1,4 @@
-"""Tests of the air-model kernels (lokigraph.behaviors.air_kernels).
+"""Tests of the air-model kernels (lokigraph.behaviors.air.kernels).
 
 Systems are integrated directly with the kernels, the way the solver uses them per substep:
 external force explicitly (v += h f / m), then ``implicit_drag_update``. Reference numbers come from
@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from lokigraph.behaviors import air_kernels as ak
+from lokigraph.behaviors.air import kernels as ak
 
 G = 9.81
 GRAV = np.array([0.0, -G, 0.0])

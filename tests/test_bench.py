@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from conftest import ROOT
-from lokigraph.bench import bench_setting, pareto, run_bench
-from lokigraph.references import elastica_curve
+from lokigraph.bench.sweep import bench_setting, pareto, run_bench
+from lokigraph.bench.references import elastica_curve
 
 BENCH = ROOT / "graphs" / "bench"
 
@@ -48,7 +48,7 @@ def test_catenary_reference_matches_the_continuous_catenary():
     reference itself): a 400-link chain, 1.5 m long, ends 1 m apart."""
     from scipy.optimize import brentq
 
-    from lokigraph.references import catenary
+    from lokigraph.bench.references import catenary
 
     n = 400
     t = np.abs(np.linspace(-1, 1, n + 1))  # a V of equal links
@@ -153,7 +153,7 @@ def test_bench_cli_errors_exit_2(tmp_path):
 
 
 def test_scaling_reports_exponent(tmp_path):
-    from lokigraph.bench import run_scaling
+    from lokigraph.bench.sweep import run_scaling
 
     res = run_scaling(tmp_path, sizes=(8, 16), frames=3)
     assert len(res["rows"]) == 2 and np.isfinite(res["exponent"])

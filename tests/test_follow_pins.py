@@ -187,7 +187,7 @@ def test_example_skirt_follows_body():
     anim = next(v for k, v in d.items() if getattr(v, "follow", None) is not None)
     carried = q[anim.follow.idx]
     # every carried vertex sits exactly at its bound point of the body's current triangles
-    from lokigraph.behaviors.core import follow_positions as fp
+    from lokigraph.behaviors.attachments.pins import follow_positions as fp
 
     assert np.abs(carried - fp(q, anim.follow)).max() < 1e-9
     assert set(anim.follow.idx) == set(waist)

@@ -8,8 +8,8 @@ import pytest
 
 from conftest import DATA, EXAMPLES
 from lokigraph.api import compile_file
-from lokigraph.behaviors.nucleus import interleave_plan
-from lokigraph.behaviors.nucleus_kernels import mesh_volume
+from lokigraph.behaviors.materials.pressure import mesh_volume
+from lokigraph.behaviors.solvers.nucleus import interleave_plan
 from lokigraph.run import Simulation
 
 REF = json.loads((DATA / "analytic" / "reference_values.json").read_text())

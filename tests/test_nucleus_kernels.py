@@ -1,9 +1,20 @@
-"""Tests of the Nucleus constraint projection kernels (lokigraph.behaviors.nucleus_kernels)."""
+"""Tests of the Nucleus constraint projection kernels: the XPBD kernels of every effect module
+(lokigraph.behaviors.materials.*, lokigraph.behaviors.attachments.goal / .surface) and the shared
+primitives of lokigraph.behaviors.solvers.nucleus.xpbd."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
-from lokigraph.behaviors import nucleus_kernels as K
 from lokigraph.behaviors import topology as T
+from lokigraph.behaviors.attachments import goal, surface
+from lokigraph.behaviors.materials import bend, pressure, rigid, shear, stretch, volume
+from lokigraph.behaviors.solvers.nucleus import xpbd
+
+#: every kernel by name, wherever its effect module keeps it
+K = SimpleNamespace(**{k: v for m in (xpbd, stretch, shear, bend, volume, pressure, rigid, goal,
+                                      surface) for k, v in vars(m).items()
+                       if not k.startswith("__")})
 
 H = 1.0 / 240.0
 

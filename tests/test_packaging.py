@@ -46,7 +46,13 @@ def test_wheel_installs_and_runs(tmp_path):
     import zipfile
 
     names = zipfile.ZipFile(wheel).namelist()
-    for must in ("lokigraph/cli.py", "lokigraph/behaviors/nucleus.py",
+    for must in ("lokigraph/cli.py", "lokigraph/behaviors/solvers/nucleus/solver.py",
+                 "lokigraph/behaviors/solvers/nucleus/xpbd.py",
+                 "lokigraph/behaviors/materials/stretch.py",
+                 "lokigraph/behaviors/attachments/pins.py", "lokigraph/behaviors/air/kernels.py",
+                 "lokigraph/behaviors/coupling/fluid.py", "lokigraph/behaviors/collision/shapes.py",
+                 "lokigraph/bench/sweep.py", "lokigraph/bench/stress.py",
+                 "lokigraph/bench/references.py",
                  "lokigraph/components/core.py", "lokigraph/graphs/default.yaml",
                  "lokigraph/graphs/examples/pinned_particles.yaml",
                  "lokigraph/graphs/examples/lid_soft.npy",
@@ -54,6 +60,14 @@ def test_wheel_installs_and_runs(tmp_path):
                  "lokigraph/graphs/bench/catenary.yaml", "lokigraph/graphs/bench/chain.obj",
                  "lokigraph/graphs/bench/drape_ref.npy"):
         assert must in names, must
+    # every source module installs (a subpackage missing from pyproject's ``packages`` would not)
+    for top, dest in (("lokigraph", "lokigraph"), ("behaviors", "lokigraph/behaviors"),
+                      ("components", "lokigraph/components")):
+        for f in (ROOT / top).rglob("*.py"):
+            if "__pycache__" in f.parts:
+                continue
+            rel = f"{dest}/{f.relative_to(ROOT / top).as_posix()}"
+            assert rel in names, f"{rel} missing from the wheel"
     assert not any(n.startswith(("behaviors/", "components/", "graphs/")) for n in names)
     env_dir = tmp_path / "venv"
     py = make_venv_sharing_deps(env_dir)

@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from lokigraph.stress import Case, cases, format_rows, run_case
+from lokigraph.bench.stress import Case, cases, format_rows, run_case
 
 
 def test_stress_harness_reports_and_catches_failures(tmp_path):
@@ -36,7 +36,7 @@ elements:
 def test_quick_stress_suite_passes():
     """`lokigraph stress --quick` in CI: every case must pass (a failing case fails the build,
     with its figures in the message)."""
-    from lokigraph.stress import run_stress
+    from lokigraph.bench.stress import run_stress
 
     rows = run_stress(quick=True)
     failed = [r for r in rows if not r["passed"]]

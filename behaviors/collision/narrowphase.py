@@ -110,7 +110,7 @@ for grazing motion, because its step is the distance divided by the *total* rela
 Step 3 is a local, per-box form of that idea.
 
 Measured cost: single-thread CPU time per query, median over repeats after warm-up, from
-``bench_narrowphase.py``. On the cloth-funnel queries, which are all near contacts, VF takes
+``lokigraph/bench/narrowphase.py``. On the cloth-funnel queries, which are all near contacts, VF takes
 about 0.6 µs and EE about 0.9 µs. Randomly built hits with large motion take 3-6 µs. Clear
 misses leave after the first box.
 

@@ -170,8 +170,8 @@ def errors(q, ref, q0) -> dict:
 # ----------------------------------------------------------------------------------- lokigraph
 
 def run_lokigraph(setting: dict, frames: int, ref=None):
-    """One lokigraph setting via lokigraph.bench.bench_setting: (row, final positions)."""
-    from lokigraph.bench import bench_setting
+    """One lokigraph setting via lokigraph.bench.sweep.bench_setting: (row, final positions)."""
+    from lokigraph.bench.sweep import bench_setting
 
     params = inspect.signature(bench_setting).parameters
     kw = {"frames": frames}

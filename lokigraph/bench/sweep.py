@@ -5,7 +5,7 @@ falls in the warm-up frame, reported separately as ``warmup_s``); ``--repeats`` 
 setting several times, interleaved, and takes the median over all measured frames. Error metrics:
 
 - ``position_error`` / ``position_rms``: against the scene's ``reference`` (closed form, exact
-  discrete solution, BVP solve or a stored tight run; see :mod:`lokigraph.references`) at the
+  discrete solution, BVP solve or a stored tight run; see :mod:`lokigraph.bench.references`) at the
   end of the run, or against a tight run given with ``--reference KEY=V,...``;
 - ``discrete_error`` (spring only): against the exact closed form of the discrete recurrence;
 - ``max_strain``: the largest edge elongation of stretch constraints (their residual when
@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .compile import compile_scene
+from ..compile import compile_scene
 from .references import evaluate, exact_discrete_spring
-from .run import Simulation
-from .scene import load_scene
+from ..run import Simulation
+from ..scene import load_scene
 
 
 def _apply(scene, setting: dict):

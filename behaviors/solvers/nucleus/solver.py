@@ -31,7 +31,7 @@ from pydantic import Field
 from lokigraph.behavior import Behavior, Params
 from lokigraph.components.core import Dynamic
 
-from .air_kernels import implicit_drag_update_inv_mass
+from ...air.kernels import implicit_drag_update_inv_mass
 
 
 class NucleusParams(Params):

@@ -1,6 +1,6 @@
 """Broad-phase benchmark: build, refit and self-collision queries on cloth-like meshes.
 
-Run ``python -m lokigraph.behaviors.collision.bench_broadphase [--sizes 10000 50000 200000]
+Run ``python -m lokigraph.bench.broadphase [--sizes 10000 50000 200000]
 [--repeats 5]``.
 
 Scene: an N x N grid sheet (about 2 N^2 triangles, unit width) rolled into an Archimedean spiral

@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .api import compile_file
-from .bench import worst_strain
-from .errors import SimulationError
-from .run import Simulation
+from ..api import compile_file
+from .sweep import worst_strain
+from ..errors import SimulationError
+from ..run import Simulation
 
 CLOTH = """
   - name: cloth
@@ -162,7 +162,7 @@ def _sliver(path: Path) -> None:
 
 def _crossed(path: Path, n: int = 12) -> None:
     """One mesh of two sheets that cut through each other (and through the stress sphere)."""
-    from .geometry import grid, write_mesh
+    from ..geometry import grid, write_mesh
 
     a = grid((1.0, 1.0), (n, n), "xz", (0, 0, 0))
     b = grid((0.6, 0.6), (n, n), "xy", (0, 0.1, 0))

@@ -1,6 +1,6 @@
 """Benchmark of the Nucleus projection kernels: time per sweep, sequential vs coloured parallel.
 
-Run as ``python -m lokigraph.behaviors.bench_kernels [--sizes 64 128] [--repeats 200]``.
+Run as ``python -m lokigraph.bench.kernels [--sizes 64 128] [--repeats 200]``.
 For every grid size (quads per side) it builds the cloth constraints (stretch on edges, shear on
 triangle corners, bend on interior edges), colours them, perturbs the positions a little and
 reports the median wall time of one sweep of each kernel after a warm-up (JIT compile and
@@ -16,7 +16,7 @@ import time
 import numba
 import numpy as np
 
-from lokigraph.behaviors import nucleus_kernels as K
+from lokigraph.behaviors.materials import bend, shear, stretch
 from lokigraph.behaviors import topology as T
 
 
@@ -56,20 +56,20 @@ def bench(sizes=(64, 128), repeats: int = 200):
         edges, eptr = sets["stretch"]
         trip, tptr = sets["shear"]
         quads, qptr = sets["bend"]
-        L = K.rest_lengths(x, edges)
-        gamma = K.rest_angles(x, trip)
-        theta = K.rest_dihedrals(x, quads)
+        L = stretch.rest_lengths(x, edges)
+        gamma = shear.rest_angles(x, trip)
+        theta = bend.rest_dihedrals(x, quads)
         ne, nt, nq = len(L), len(gamma), len(theta)
         a_s, a_c = np.full(ne, 1e-7), np.full(ne, 1e-5)
         a_t = np.full(nt, 1e-4)
         a_q, drop = np.full(nq, 1e-2), np.full(nq, 0.5)
         cases = {
             "stretch": (ne, eptr, lambda f, q, lam: f(q, w, edges, L, a_s, a_c, lam, h, eptr),
-                        K.project_stretch_seq, K.project_stretch),
+                        stretch.project_stretch_seq, stretch.project_stretch),
             "shear": (nt, tptr, lambda f, q, lam: f(q, w, trip, gamma, a_t, lam, h, tptr),
-                      K.project_angle_seq, K.project_angle),
+                      shear.project_angle_seq, shear.project_angle),
             "bend": (nq, qptr, lambda f, q, lam: f(q, w, quads, theta, a_q, drop, lam, h, qptr),
-                     K.project_dihedral_seq, K.project_dihedral),
+                     bend.project_dihedral_seq, bend.project_dihedral),
         }
         for name, (m, ptr, call, fseq, fpar) in cases.items():
             med, mn = [], []

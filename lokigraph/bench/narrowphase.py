@@ -1,6 +1,6 @@
 """Benchmark of the narrow-phase batch kernels.
 
-Run as ``python -m lokigraph.behaviors.collision.bench_narrowphase [--n 100000] [--repeats 7]``.
+Run as ``python -m lokigraph.bench.narrowphase [--n 100000] [--repeats 7]``.
 
 Input: the cloth-funnel CCD queries (frames 227 -> 228 of the Scalable-CCD sample data, see
 ``tests/data/ccd/README.md``), tiled to about ``n`` candidates of each kind. The queries index

@@ -21,7 +21,7 @@ from lokigraph.component import resolve_paintable
 from lokigraph.components.core import Dynamic
 from lokigraph.components.materials import DiscreteShell, Rod
 
-from . import topology as T
+from .. import topology as T
 
 
 @njit(cache=True, parallel=True)
