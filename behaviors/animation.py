@@ -64,6 +64,8 @@ class KinematicAnimation(Behavior):
                         np.array([x.translate for x in k.keys]),
                         np.array([x.rotate for x in k.keys]), np.array([x.pivot for x in k.keys]))
             seq = e.sequence
+            if seq is None and e.spec is not None and e.spec.usd is not None:
+                seq = e.spec.usd  # a USD prim's time samples behave as a mesh sequence
             if seq is not None and e.spec is not None:
                 avail = self._check_sequence(ctx, e, start, end)
                 if avail is not None:
@@ -86,34 +88,47 @@ class KinematicAnimation(Behavior):
         spec = e.spec
         base = Path(e.base_dir)
         locs = ctx.scene.locations
-        where = ("elements", e.index, "geometry", "sequence")
+        source = "usd" if spec.usd is not None else "sequence"
+        where = ("elements", e.index, "geometry", source)
 
-        def err(msg, key="sequence"):
+        def err(msg, key=source):
             ctx.diagnostics.append(locs.diag(where[:-1] + (key,), msg, element=e.name,
                                              field=f"geometry.{key}"))
 
-        avail = available_frames(spec.sequence, base)
-        if spec.hold == "error":
-            if avail is not None:
-                miss = first_missing(avail, start, end)
-            else:  # cannot list the folder: check the first and the last frame the run needs
-                miss = next((f for f in (start, end)
-                             if not (base / frame_file(spec.sequence, f)).exists()), None)
-            if miss is not None:
-                missing = base / frame_file(spec.sequence, miss)
-                err(f"frame {miss} of the sequence is missing: {missing} not found; the run "
-                    f"needs frames {start}..{end} and the sequence has "
-                    f"{describe_frames(avail) if avail is not None else 'fewer'}; set "
-                    f"geometry.hold to first, last or loop to run past its ends")
+        if spec.usd is not None:  # frames: the time samples of the prim's points
+            from lokigraph.usd import usd_frames
+
+            try:
+                avail = usd_frames(base / spec.usd, spec.prim, ctx.scene.spec.frames.fps)
+            except MeshReadError as exc:
+                err(str(exc), getattr(exc, "key", None) or "usd")
+                return None
+            if spec.hold == "error" and avail is not None and \
+                    first_missing(avail, start, end) is not None:
+                return avail  # reported by the scene (lokigraph.usd.missing_usd_frame)
+        else:
+            avail = available_frames(spec.sequence, base)
+            if spec.hold == "error":
+                if avail is not None:
+                    miss = first_missing(avail, start, end)
+                else:  # cannot list the folder: check the first and last frame the run needs
+                    miss = next((f for f in (start, end)
+                                 if not (base / frame_file(spec.sequence, f)).exists()), None)
+                if miss is not None:
+                    missing = base / frame_file(spec.sequence, miss)
+                    err(f"frame {miss} of the sequence is missing: {missing} not found; the "
+                        f"run needs frames {start}..{end} and the sequence has "
+                        f"{describe_frames(avail) if avail is not None else 'fewer'}; set "
+                        f"geometry.hold to first, last or loop to run past its ends")
+                    return avail
+            elif avail is not None and not len(avail):
+                err(f"no file of the sequence found ({base / spec.sequence})")
                 return avail
-        elif avail is not None and not len(avail):
-            err(f"no file of the sequence found ({base / spec.sequence})")
-            return avail
         for f in sorted({start, end}):
             try:
                 g = _sequence_frame(e, f)
             except (MeshReadError, KeyError, ValueError) as exc:
-                err(str(exc))
+                err(str(exc), getattr(exc, "key", None) or source)
                 break
             if g.vertex_count != e.vertex_count:
                 err(f"frame {f} has {g.vertex_count} vertices, the element has "

@@ -10,6 +10,7 @@ import numpy as np
 from lokigraph.behavior import Behavior, vertex_indices
 from lokigraph.component import resolve_paintable
 from lokigraph.components.core import Dynamic, RestSpring
+from lokigraph.keys import Keyed, step_frame
 
 
 @dataclass
@@ -21,6 +22,8 @@ class _Indexed:
 @dataclass
 class _Spring(_Indexed):
     anchor: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    #: keyed stiffness: (slice of ``values``, Keyed), re-evaluated every substep
+    keyed: list = field(default_factory=list)
 
 
 class Gravity(Behavior):
@@ -50,13 +53,25 @@ class RestSpringForce(Behavior):
 
     def bind(self, ctx, elements):
         idx = vertex_indices(elements)
-        k = np.concatenate([resolve_paintable(e.get(RestSpring).stiffness, e,
-                                              "RestSpring.stiffness") for e in elements])
+        parts, keyed, at = [], [], 0
+        for e in elements:
+            k = e.get(RestSpring).stiffness
+            if isinstance(k, Keyed):  # scalar keys: filled per substep (lokigraph.keys)
+                keyed.append((slice(at, at + e.vertex_count), k))
+                parts.append(np.zeros(e.vertex_count))
+            else:
+                parts.append(resolve_paintable(k, e, "RestSpring.stiffness"))
+            at += e.vertex_count
+        k = np.concatenate(parts)
         anchor = np.concatenate([
             np.tile(e.get(RestSpring).anchor, (e.vertex_count, 1)) if e.get(RestSpring).anchor
             is not None else ctx.model.particle_rest[e.vertex_slice] for e in elements])
-        return _Spring(idx, k, anchor)
+        return _Spring(idx, k, anchor, keyed)
 
     def step(self, ctx, data):
+        if data.keyed:
+            f = step_frame(ctx)
+            for sl, key in data.keyed:
+                data.values[sl] = key.evaluate(f)
         x = ctx.state.particle_q[data.idx]
         ctx.state.particle_f[data.idx] -= data.values[:, None] * (x - data.anchor)

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from lokigraph.component import Component, Paintable
+from lokigraph.component import Component, keyable_paintable
+from lokigraph.keys import Keyed, KeyedFloat, keyable
 
 Vec3 = tuple[float, float, float]
+KeyedVec3 = tuple[KeyedFloat, KeyedFloat, KeyedFloat]
 
 
 class WindKey(BaseModel):
@@ -24,15 +26,28 @@ class Wind(Component):
     """A uniform wind with optional smooth deterministic gusts (noise), keyable.
 
     u(x, t) = speed * direction + gusts, gusts of RMS noise * speed with wavelengths up to
-    ``noise_scale`` (see :func:`lokigraph.behaviors.air.kernels.wind_velocity`).
+    ``noise_scale`` (see :func:`lokigraph.behaviors.air.kernels.wind_velocity`). ``speed`` and
+    each component of ``direction`` may be keyed (``speed: {keys: {1: 0, 24: 8}, interp:
+    smooth}``, see :mod:`lokigraph.keys`); the older ``keys: [{frame, speed, direction}]`` list
+    (linear) still works but not together with keyed fields.
     """
 
-    direction: Vec3 = Field((1.0, 0.0, 0.0), description="Wind direction (normalised).")
-    speed: float = Field(0.0, description="Wind speed [m/s].")
+    direction: KeyedVec3 = Field((1.0, 0.0, 0.0), description="Wind direction (normalised). "
+                                 "Keyable (each component).")
+    speed: keyable() = Field(0.0, description="Wind speed [m/s]. Keyable.")
     noise: float = Field(0.0, ge=0, description="Gust amplitude relative to speed [-].")
     noise_scale: float = Field(1.0, gt=0, description="Largest gust wavelength [m].")
     seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of the gust pattern.")
-    keys: list[WindKey] = Field(default_factory=list, description="Keyed speed / direction.")
+    keys: list[WindKey] = Field(default_factory=list, description="Keyed speed / direction "
+                                "(linear; the older form of keyed speed and direction).")
+
+    @model_validator(mode="after")
+    def _one_kind_of_keys(self):
+        if self.keys and (isinstance(self.speed, Keyed)
+                          or any(isinstance(c, Keyed) for c in self.direction)):
+            raise ValueError("give keyed speed/direction either as 'keys: [...]' or as keyed "
+                             "fields ({keys: {FRAME: VALUE}}), not both")
+        return self
 
 
 class Drag(Component):
@@ -47,8 +62,9 @@ class Drag(Component):
 
     needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
     model: Literal["linear", "anisotropic", "ergun"] = "linear"
-    coefficient: Paintable = Field(0.0, description="Isotropic linear drag (see model). "
-                                                    "Paintable.")
+    coefficient: keyable_paintable(ge=0) = Field(
+        0.0, description="Isotropic linear drag (see model). Paintable. Keyable (scalar keys "
+                         ">= 0, the same on every vertex).")
     normal: float = Field(0.0, ge=0, description="Anisotropic: coefficient along the face normal "
                                                  "(rods: across the rod).")
     tangent: float = Field(0.0, ge=0, description="Anisotropic: coefficient in the face plane "

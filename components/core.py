@@ -7,7 +7,9 @@ from typing import ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from lokigraph.component import Component, Paintable, VertexIndex, resolve_paintable
+from lokigraph.component import (Component, Paintable, VertexIndex, keyable_paintable,
+                                 resolve_paintable)
+from lokigraph.keys import keyable
 from lokigraph.selection import SelectionLike, resolve_selection
 from lokigraph.geometry import vertex_measure
 
@@ -30,8 +32,8 @@ class Dynamic(Component):
     point_mass: float | None = Field(None, gt=0, description="Mass of each vertex [kg]; "
                                                               "overrides mass_density.")
     velocity: Vec3 = Field((0.0, 0.0, 0.0), description="Initial velocity [m/s].")
-    damping: float = Field(0.0, ge=0, description="Velocity damping rate [1/s] (Nucleus "
-                                                  "'damp'): v *= exp(-damping h) per substep.")
+    damping: keyable(ge=0) = Field(0.0, description="Velocity damping rate [1/s] (Nucleus "
+                                   "'damp'): v *= exp(-damping h) per substep. Keyable.")
 
     @field_validator("mass_density")
     @classmethod
@@ -180,8 +182,9 @@ class RestSpring(Component):
     """
 
     needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
-    stiffness: Paintable = Field(1.0, description="Spring stiffness per vertex [N/m], >= 0. "
-                                                  "Paintable.")
+    stiffness: keyable_paintable(ge=0) = Field(
+        1.0, description="Spring stiffness per vertex [N/m], >= 0. Paintable. Keyable (scalar "
+                         "keys, the same on every vertex).")
     anchor: Vec3 | None = Field(None, description="Fixed anchor point [m] for every vertex "
                                                   "instead of its rest position.")
 

@@ -92,6 +92,18 @@ class Behavior:
         """One line for ``lokigraph plan`` (e.g. counts of packed items)."""
         return ""
 
+    # -- checkpoints (lokigraph.checkpoint) ----------------------------------------------
+    def state_arrays(self, data) -> dict[str, np.ndarray]:
+        """The per-run memory this behavior keeps in ``data`` between substeps (anything
+        besides State and Control that a later step reads and an earlier step wrote: contact
+        side history, warm starts, counters, RNG state as arrays). A checkpoint stores it under
+        the node's name; scratch buffers, per-substep values rebuilt before use, and memos of
+        input files are not state. Default: nothing."""
+        return {}
+
+    def load_state_arrays(self, data, arrays: dict[str, np.ndarray]) -> None:
+        """Restore what :meth:`state_arrays` returned (same keys, same shapes), in place."""
+
 
 class ConstraintBehavior(Behavior):
     """A constraint type for the ``nucleus`` solver (Nucleus section 6).

@@ -56,8 +56,19 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("scene")
     r.add_argument("--frames", type=_frames, help="write frames A:B (simulates from the start)")
     r.add_argument("--out", help="output folder (default: the scene's output.dir)")
-    r.add_argument("--format", choices=["obj", "ply", "vtu"], help="mesh format of frames")
-    r.add_argument("--quiet", action="store_true", help="no progress output")
+    r.add_argument("--format", choices=["obj", "ply", "vtu", "usd"],
+                   help="format of frames: a mesh file per element per frame (obj, ply, vtu) or "
+                        "one USD stage per run (usd: DIR/run.usd; needs lokigraph[usd])")
+    r.add_argument("--quiet", action="store_true", help="no progress output on stderr (a bar "
+                   "with frame, ms/frame and ETA on a terminal, plain lines otherwise)")
+    r.add_argument("-v", "--verbose", action="store_true", help="print one line of solver "
+                   "statistics per substep on stderr (also with --quiet)")
+    r.add_argument("--preview", action="store_true", help="at the end, write OUT/preview.gif "
+                   "and OUT/run_stats.png (lokigraph preview; needs lokigraph[preview])")
+    r.add_argument("--resume", metavar="OUT", help="continue the killed, failed or interrupted "
+                   "run in OUT from its last checkpoint (OUT/checkpoints; output."
+                   "checkpoint_every), with the same scene; frames after it are rewritten, "
+                   "bit-identical to an uninterrupted run")
     r.add_argument("--overwrite", action="store_true", help="replace another run's output in the "
                    "folder (default: the scene's output.overwrite; without it such a run is "
                    "refused)")
@@ -92,6 +103,14 @@ def _parser() -> argparse.ArgumentParser:
     stz.add_argument("--quick", action="store_true", help="small and short (for CI)")
     stz.add_argument("--out", help="folder for stress.json")
     stz.add_argument("--only", help="run only the cases whose name contains this text")
+
+    from .wedge import add_parser as _add_wedge
+
+    _add_wedge(sub)
+
+    from .preview import add_parser as _add_preview
+
+    _add_preview(sub)
 
     sc = sub.add_parser("schema", help="JSON schema of components and behavior parameters")
     sc.add_argument("--out", help="write to this file instead of stdout")
@@ -158,6 +177,14 @@ def _main(args) -> int:
 
 
 def _dispatch(args) -> int:
+    if args.command == "wedge":
+        from .wedge import dispatch
+
+        return dispatch(args)
+    if args.command == "preview":
+        from .preview import dispatch as _preview
+
+        return _preview(args)
     if args.command == "behaviors":
         return _cmd_behaviors()
     if args.command == "schema":
@@ -217,11 +244,25 @@ def _dispatch(args) -> int:
     if args.command == "run":
         from .run import run
 
-        res = run(compiled, frames=args.frames, out_dir=args.out, fmt=args.format,
-                  progress=not args.quiet, overwrite=True if args.overwrite else None)
+        if args.preview:  # fail before simulating when the preview extra is missing
+            from .preview import check_available
+
+            check_available("gif")
+        if args.resume and args.out and args.out != args.resume:
+            raise InputError("give --resume OUT or --out DIR, not both (--resume writes into "
+                             "the run's own folder)")
+        if args.resume and args.overwrite:
+            raise InputError("--resume continues the run in OUT; --overwrite would replace it")
+        res = run(compiled, frames=args.frames, out_dir=args.resume or args.out, fmt=args.format,
+                  progress=not args.quiet, overwrite=True if args.overwrite else None,
+                  verbose=args.verbose, resume=bool(args.resume))
         tot = sum(res.frame_seconds)
         print(f"wrote {res.summary()} ({tot:.2f} s wall time, "
               f"{tot / max(len(res.frame_seconds), 1) * 1e3:.1f} ms/frame)")
+        if args.preview:
+            from .preview import preview_after_run
+
+            print("wrote " + ", ".join(map(str, preview_after_run(res.out_dir))))
         return EXIT_OK
     raise InputError(f"unknown command {args.command}")  # pragma: no cover
 

@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Discriminator, Field, Tag, Validatio
 from pydantic.types import FiniteFloat
 
 from .errors import Diagnostic
+from .keys import Keyed, KeyedFloat, _bounded_keyed, keyable, value_at  # noqa: F401
 from .selection import (MAX_INDEX, MapAttribute, MapSelection, Selection,  # noqa: F401
                         SelectionError, VertexIndex, map_from_attribute, map_from_selection,
                         resolve_selection)
@@ -45,7 +46,7 @@ _MAP_KEYS = (("file", "MapFile"), ("vertices", "MapVertices"), ("select", "MapSe
              ("attribute", "MapAttribute"))
 #: names pydantic puts in error locations for the members of a Paintable (hidden in messages)
 UNION_TAGS = frozenset({"float", "str", "list", "MapFile", "MapVertices", "MapSelection",
-                        "MapAttribute", "Selection"})
+                        "MapAttribute", "Selection", "Keyed", "[key]"})
 
 
 def _paintable_kind(v):
@@ -75,6 +76,29 @@ Paintable = Annotated[
 """A per-vertex value: a (finite) scalar, a channel name, ``{file: ...}``, ``{vertices: [...],
 value: v, default: d}``, ``{select: SELECTION, value: v, default: d}`` or ``{attribute: NAME,
 component: k, remap: {from: [a, b], to: [c, d]}}``."""
+
+
+def _keyable_paintable_kind(v):
+    if isinstance(v, Keyed) or (isinstance(v, dict) and "keys" in v):
+        return "Keyed"
+    return _paintable_kind(v)
+
+
+def keyable_paintable(ge=None, gt=None, le=None, lt=None):
+    """A :data:`Paintable` that may also be keyed over time (``{keys: {FRAME: VALUE}, interp:
+    ...}``, see :mod:`lokigraph.keys`): keys are scalar (the same value on every vertex); maps
+    stay static. The bounds apply to the keys' values (a plain value or map is checked by the
+    field's own validator, as for :data:`Paintable`). A behavior reading such a field handles
+    :class:`~lokigraph.keys.Keyed` itself (``resolve_paintable`` refuses it)."""
+    return Annotated[
+        Union[Annotated[FiniteFloat, Tag("float")], Annotated[str, Tag("str")],
+              Annotated[MapFile, Tag("MapFile")], Annotated[MapVertices, Tag("MapVertices")],
+              Annotated[MapSelection, Tag("MapSelection")],
+              Annotated[MapAttribute, Tag("MapAttribute")],
+              Annotated[_bounded_keyed(ge, gt, le, lt), Tag("Keyed")]],
+        Discriminator(_keyable_paintable_kind, custom_error_type="paintable",
+                      custom_error_message="expected a number, a channel name, {file: ...}, "
+                      "{vertices: [...]}, {select: ...}, {attribute: ...} or {keys: ...}")]
 
 
 def _channel_kind(v):
@@ -117,6 +141,9 @@ def resolve_paintable(value, element, field_name: str = "") -> np.ndarray:
         raise ValueError("paintable value is None")
     if isinstance(value, (int, float)):
         return np.full(n, float(value))
+    if isinstance(value, Keyed):
+        raise TypeError(f"{field_name or 'value'} is keyed: evaluate it per substep with "
+                        f"lokigraph.keys.value_at")
     if isinstance(value, MapVertices):
         out = np.full(n, float(value.default))
         idx = np.asarray(value.vertices, dtype=np.int64)
@@ -253,6 +280,14 @@ def pydantic_messages(exc: ValidationError, known_fields=None) -> list[tuple[tup
         if etype == "value_error" and msg.startswith("Value error, "):
             msg = msg[len("Value error, "):]
         msg = _plain_words(etype, msg)
+        inp = err.get("input")
+        if err["loc"] and err["loc"][-1] == "[key]" and etype in ("float_parsing", "float_type"):
+            msg = f"a key's frame must be a number (got {inp!r})"
+        if loc and isinstance(inp, dict) and "keys" in inp and etype not in (
+                "extra_forbidden", "missing", "value_error"):
+            # {keys: ...} on a field that does not take keys (see lokigraph.keys)
+            msg = ("cannot be keyed: only fields documented as 'Keyable.' accept "
+                   "{keys: {FRAME: VALUE}, interp: ...}")
         if etype == "extra_forbidden" and loc:
             # a key of the model itself, or (nested) of a selection / painted map
             vocab = list(known_fields or ()) + (_nested_keys() if len(loc) > 1 else [])

@@ -42,7 +42,7 @@ from .errors import EXIT_SIMULATION, InputError, OutputError, SimulationError
 from .meshfile import write_mesh
 from .model import Control, State
 
-FORMATS = ("obj", "ply", "vtu")
+FORMATS = ("obj", "ply", "vtu", "usd")  # usd: one stage per run (lokigraph.usd)
 #: a frame file written by a run: ``0007.obj``, ``-001.ply``
 FRAME_RE = re.compile(r"^-?\d+\.(obj|ply|vtu)$")
 #: our temporaries: ``.0007.obj.tmp-123`` (and the older ``.0007.obj.tmp123.obj``)
@@ -202,7 +202,9 @@ def _clean_temps(folder: Path) -> None:
 
 def previous_run(out: Path) -> dict:
     """Another run's output in ``out``: ``run.json`` (if any) and frame files per sub-folder."""
-    found = {"run_json": (out / "run.json").exists(), "frames": {}}
+    from .usd import stage_files
+
+    found = {"run_json": (out / "run.json").exists(), "frames": {}, "stage": stage_files(out)}
     with contextlib.suppress(FileNotFoundError, NotADirectoryError), os.scandir(out) as it:
         for e in it:
             if not e.is_dir(follow_symlinks=False):
@@ -222,6 +224,8 @@ def _describe(prev: dict) -> str:
     parts = []
     if prev["run_json"]:
         parts.append("run.json")
+    if prev.get("stage"):
+        parts.append("a USD stage (run.usd)")
     for name, files in sorted(prev["frames"].items()):
         parts.append(f"{len(files)} frame{'s' if len(files) != 1 else ''} in {name}/")
     return ", ".join(parts)
@@ -244,7 +248,7 @@ def prepare_output(out: Path, names: list[str], overwrite: bool = False,
     _clean_temps(out)
     prev = previous_run(out)
     replaced = {"run_json": False, "frame_files": 0}
-    if prev["run_json"] or prev["frames"]:
+    if prev["run_json"] or prev["frames"] or prev["stage"]:
         if not overwrite:
             raise OutputError(f"output folder {out} holds another run's output "
                               f"({_describe(prev)}); use --overwrite (or output: {{overwrite: "
@@ -259,6 +263,9 @@ def prepare_output(out: Path, names: list[str], overwrite: bool = False,
             if prev["run_json"]:
                 (out / "run.json").unlink()
                 replaced["run_json"] = True
+            for f in prev["stage"]:  # a USD run's stage files
+                f.unlink()
+                replaced["frame_files"] += 1
             for name, files in prev["frames"].items():
                 for f in files:
                     os.unlink(f)
@@ -292,6 +299,21 @@ def prepare_output(out: Path, names: list[str], overwrite: bool = False,
     return replaced
 
 
+def prepare_resume(out: Path, names: list[str]) -> None:
+    """Output folders of a run being resumed: its frames stay (those after the checkpoint are
+    rewritten); stale temporaries are removed; OutputError (exit 2) if they cannot be written."""
+    if not out.is_dir():
+        raise OutputError(f"cannot resume: {out} is not a folder")
+    _clean_temps(out)
+    for name in names:
+        d = out / name
+        try:
+            d.mkdir(exist_ok=True)
+        except OSError as exc:
+            raise OutputError(f"cannot create element folder {d}: {_reason(exc)}") from None
+        _clean_temps(d)
+
+
 def _accepts_velocities(fn) -> bool:
     try:
         params = inspect.signature(fn).parameters
@@ -321,6 +343,9 @@ class RunResult:
     elements: list = field(default_factory=list)
     format: str = "obj"
     run_json_error: str | None = None
+    #: ``--format usd``: {"stage": path of run.usd (None before the first frame), "prims":
+    #: element -> prim path} (lokigraph.usd)
+    stage: dict | None = None
 
     def summary(self) -> str:
         """One line: what was written where, and run.json's status (the CLI prints it)."""
@@ -328,6 +353,8 @@ class RunResult:
             return "nothing written"
         text = (f"{_frame_span(self.frames_written)} of "
                 f"{', '.join(self.elements) or 'no element'} in {self.out_dir}")
+        if self.stage and self.stage.get("stage"):
+            text += f" (USD stage {self.stage['stage']})"
         if self.run_json_error:
             return text + f"; run.json could not be written ({self.run_json_error})"
         return text + f", run.json status {self.status}"
@@ -351,6 +378,28 @@ class Simulation:
                                          & ~self.model.particle_compliant)
         self.frame = compiled.scene.spec.frames.start
         self.substep_index = 0
+        #: ``on_substep(frame, k, substeps, time, seconds, stats)`` after each substep (``-v``)
+        self.on_substep = None
+
+    def begin(self, init: dict | None = None, preroll: int = 0,
+              checkpoint: dict | None = None) -> int:
+        """Set the starting point; returns the first simulated frame. ``checkpoint``: arrays
+        of a checkpoint (lokigraph.checkpoint), restored exactly (the run goes on from its
+        frame). Else ``init`` (lokigraph.checkpoint.load_initial_state) sets the dynamic
+        elements' positions and velocities, and ``preroll`` frames are simulated before the
+        scene's start frame (the clock starts ``preroll`` frames earlier)."""
+        from . import checkpoint as ckpt
+
+        if checkpoint is not None:
+            ckpt.restore(self, checkpoint)
+            return self.frame
+        if init is not None:
+            ckpt.apply_initial_state(self, init)
+        if preroll:
+            self.frame -= int(preroll)
+            self.state.time = -preroll / self.model.fps
+            self.control.time = self.state.time
+        return self.frame
 
     def step_substep(self) -> dict:
         m, st, ctl = self.model, self.state, self.control
@@ -391,8 +440,12 @@ class Simulation:
 
     def step_frame(self) -> dict:
         stats: dict = {}
-        for _ in range(self.model.substeps):
+        for k in range(self.model.substeps):
+            t0 = time.perf_counter()
             s = self.step_substep()
+            if self.on_substep is not None:
+                self.on_substep(self.frame + 1, k + 1, self.model.substeps, self.state.time,
+                                time.perf_counter() - t0, s)
             for k, v in s.items():
                 if isinstance(v, (int, float, np.floating, np.integer)):
                     v = float(v)
@@ -424,7 +477,7 @@ def _versions() -> dict:
 
 def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str | Path | None = None,
         fmt: str | None = None, progress: bool | None = None, write: bool = True,
-        overwrite: bool | None = None) -> RunResult:
+        overwrite: bool | None = None, verbose: bool = False, resume: bool = False) -> RunResult:
     """Simulate from the scene's start frame to the last requested frame; write frames A..B.
 
     ``overwrite`` (default: the scene's ``output.overwrite``) replaces another run's output in
@@ -433,7 +486,14 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
     (exit 3, a write failure) and RunInterrupted (SIGINT/SIGTERM) are raised after run.json is
     written with status "failed" or "interrupted"; frames already written stay. The exception
     carries the :class:`RunResult` as ``.result``.
+
+    Checkpoints (``output.checkpoint_every``, lokigraph.checkpoint) go to ``DIR/checkpoints``;
+    ``resume`` continues the run in ``DIR`` from its newest checkpoint (OutputError, exit 2,
+    when there is none or it is another scene's). ``initial_state`` and ``preroll`` of the
+    scene set where the simulation starts.
     """
+    from . import checkpoint as ckpt
+
     spec = compiled.scene.spec
     start, end = spec.frames.start, spec.frames.end
     a, b = frames if frames is not None else (start, end)
@@ -443,25 +503,58 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
     fmt = fmt or spec.output.format
     if fmt not in FORMATS:
         raise InputError(f"unknown output format {fmt!r} (one of {', '.join(FORMATS)})")
+    if fmt == "usd" and write:
+        from .usd import INSTALL_HINT, have_pxr
+
+        if not have_pxr():
+            raise InputError(f"--format usd needs usd-core, which is not installed; "
+                             f"{INSTALL_HINT}")
     overwrite = bool(spec.output.overwrite if overwrite is None else overwrite)
     out = Path(out_dir if out_dir is not None else spec.output.dir)
     outs = output_elements(compiled)
+    resumed = None
+    if resume:  # the run's own frames, format and first frame; only the last may change
+        if not write:
+            raise InputError("--resume needs output (it continues the run written in DIR)")
+        resumed = ckpt.resume_point(compiled, out, fmt if fmt != spec.output.format else None,
+                                    frames)
+        a, b = resumed[1]["requested"][0], (frames[1] if frames is not None
+                                            else resumed[1]["requested"][1])
+        fmt = resumed[1]["format"]
+    init = ckpt.load_initial_state(compiled) if resumed is None else None
     replaced = None
-    if write:
-        replaced = prepare_output(out, [el.name for el in outs], overwrite, _input_dirs(compiled))
+    if write and resumed is not None:
+        prepare_resume(out, [el.name for el in outs])
+    elif write:
+        replaced = prepare_output(out, [] if fmt == "usd" else [el.name for el in outs],
+                                  overwrite, _input_dirs(compiled))
+        ckpt.clear(out)
     sim = Simulation(compiled)
+    first = sim.begin(init, spec.preroll, resumed[0] if resumed else None)
+    if resumed is not None:
+        first = int(resumed[1]["first"])  # the run's checkpoint schedule goes on
     result = RunResult(sim.state, out_dir=out if write else None,
                        elements=[el.name for el in outs], format=fmt)
     if progress is None:
         progress = sys.stderr.isatty()
-    bar = _Progress(b - start) if progress else None
+    bar = None
+    if progress or verbose:  # lokigraph.progress: a bar on a terminal, plain lines otherwise
+        from .progress import RunProgress
+
+        bar = RunProgress(start, b, show=bool(progress), verbose=verbose)
+        if verbose:
+            sim.on_substep = bar.substep
     with_velocities = _accepts_velocities(write_mesh)
     sigs = _Signals()
+    stage = _open_stage(out, outs, spec, a, result) if write and fmt == "usd" else None
 
     def write_frame(frame: int) -> None:
         if not write:
             return
         with sigs.deferred():  # a signal waits until the frame is complete for every element
+            if stage is not None:  # USD: every element into the run's stage
+                _write_stage_frame(stage, frame, sim.state, result)
+                return
             for el in outs:
                 sl = el.vertex_slice
                 pts = sim.state.particle_q[sl]
@@ -476,11 +569,21 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
 
     t_start = time.perf_counter()
     record = []
+    if resumed is not None:  # the run so far: its written frames and per-frame records
+        result.frames_written.extend(resumed[1]["written"])
+        record.extend(resumed[1]["record"])
+    # no checkpoints for USD output: the stage writer cannot append to a stopped run's stage
+    cps = ckpt.Checkpointer(compiled, out, spec.output.checkpoint_every
+                            if write and fmt != "usd" else 0,
+                            spec.output.checkpoint_keep, fmt, (a, b), first, result, record,
+                            resumed_from=sim.frame if resumed else None)
     with sigs:
         try:
-            if a == start:
+            if a == start and sim.frame == start and resumed is None:
                 write_frame(start)
-            for frame in range(start + 1, b + 1):
+            with sigs.deferred():
+                cps.after_frame(sim)
+            for frame in range(sim.frame + 1, b + 1):
                 t0 = time.perf_counter()
                 stats = sim.step_frame()
                 dt = time.perf_counter() - t0
@@ -489,8 +592,10 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
                 record.append({"frame": frame, "seconds": dt, "stats": stats})
                 if frame >= a:
                     write_frame(frame)
-                if bar:
-                    bar.update(frame - start, time.perf_counter() - t_start)
+                with sigs.deferred():
+                    cps.after_frame(sim)
+                if bar and frame >= start:
+                    bar.update(frame, dt)
         except KeyboardInterrupt as exc:
             result.status, result.error = "interrupted", exc
         except (SimulationError, OutputError) as exc:
@@ -500,11 +605,22 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
         finally:
             if bar:
                 bar.close()
+            if stage is not None:
+                stage.close()
+            if result.error is not None:
+                with contextlib.suppress(OSError, KeyboardInterrupt), sigs.deferred():
+                    cps.final()
         if write:
             try:
                 with sigs.deferred():  # signals wait until run.json is written
                     _write_run_json(compiled, out, result, record, replaced, overwrite,
-                                    with_velocities, (a, b), time.perf_counter() - t_start)
+                                    with_velocities, (a, b), time.perf_counter() - t_start,
+                                    {"resumed_from": resumed[1]["frame"] if resumed else None,
+                                     "checkpoints": cps.info(), "preroll": spec.preroll,
+                                     "initial_state": None if init is None else {
+                                         "source": init["source"],
+                                         "frame": spec.initial_state.frame},
+                                     "warnings": [] if init is None else init["warnings"]})
             except OSError as exc:
                 result.run_json_error = _reason(exc)
                 if result.error is None:
@@ -520,8 +636,39 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
     return result
 
 
+# -- USD output (lokigraph.usd): one stage per run instead of a file per element per frame --
+
+def _open_stage(out: Path, outs: list, spec, first: int, result: RunResult):
+    """The run's :class:`~lokigraph.usd.StageWriter` (prims and topology written); OutputError
+    (exit 2) if it cannot be created."""
+    from pxr import Tf
+
+    from .usd import StageWriter
+
+    try:
+        stage = StageWriter(out, outs, spec.frames.fps, first, {"lokigraph": __version__})
+    except (OSError, Tf.ErrorException) as exc:
+        raise OutputError(f"cannot create the USD stage in {out}: "
+                          f"{' '.join(str(exc).split())}") from None
+    result.stage = {"stage": None, "prims": dict(stage.prims)}
+    return stage
+
+
+def _write_stage_frame(stage, frame: int, state, result: RunResult) -> None:
+    from pxr import Tf
+
+    try:
+        stage.write(frame, state.particle_q, state.particle_qd)
+    except (OSError, Tf.ErrorException) as exc:
+        raise OutputError(f"cannot write frame {frame} into the USD stage {stage.root_path}: "
+                          f"{' '.join(str(exc).split())}", EXIT_SIMULATION) from None
+    result.stage["stage"] = str(stage.stage_path)
+    result.frames_written.append(frame)
+
+
 def _write_run_json(compiled, out: Path, result: RunResult, record: list, replaced, overwrite,
-                    with_velocities: bool, requested: tuple[int, int], seconds: float) -> None:
+                    with_velocities: bool, requested: tuple[int, int], seconds: float,
+                    extra: dict | None = None) -> None:
     spec = compiled.scene.spec
     err = result.error
     by = getattr(err, "signum", signal.SIGINT) if isinstance(err, KeyboardInterrupt) else None
@@ -546,10 +693,12 @@ def _write_run_json(compiled, out: Path, result: RunResult, record: list, replac
         "format": result.format,
         "output": {"dir": str(out), "format": result.format, "elements": result.elements,
                    "kinematic": spec.output.kinematic, "elements_requested": spec.output.elements,
-                   "overwrite": overwrite, "replaced": replaced, "velocities": with_velocities},
+                   "overwrite": overwrite, "replaced": replaced, "velocities": with_velocities,
+                   "usd": result.stage},
         "schedule": compiled.schedule.as_dict(),
         "total_seconds": seconds,
         "per_frame": record,
+        **(extra or {}),
     }
     data = json.dumps(info, indent=1, default=_json_default)
     atomic_write(out / "run.json", lambda p: p.write_text(data))
@@ -561,35 +710,3 @@ def _json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()
     return str(o)
-
-
-class _Progress:
-    """A progress bar on a terminal; a plain line every few seconds otherwise (logs, pipes)."""
-
-    def __init__(self, total: int, every: float = 5.0):
-        self.total = max(total, 1)
-        self.tty = sys.stderr.isatty()
-        self.every = every
-        self.last = 0.0  # plain lines: none for runs shorter than ``every`` seconds
-        self.drawn = False
-        self.lines = False
-
-    def update(self, done: int, elapsed: float) -> None:
-        frac = done / self.total
-        eta = elapsed / max(frac, 1e-9) - elapsed
-        if self.tty:
-            width = 30
-            bar = "#" * int(width * frac) + "-" * (width - int(width * frac))
-            sys.stderr.write(f"\r[{bar}] {done}/{self.total} frames  {elapsed:6.1f}s elapsed  "
-                             f"eta {eta:6.1f}s")
-            self.drawn = True
-        elif elapsed - self.last >= self.every or (done == self.total and self.lines):
-            self.last, self.lines = elapsed, True
-            sys.stderr.write(f"{done}/{self.total} frames, {elapsed:.1f} s elapsed, "
-                             f"eta {eta:.1f} s\n")
-        sys.stderr.flush()
-
-    def close(self) -> None:
-        if self.drawn:
-            sys.stderr.write("\n")
-            sys.stderr.flush()

@@ -38,7 +38,7 @@ from .errors import Diagnostic, InputError
 from .generators import GeneratorParamsError, make_geometry
 from .geometry import Geometry, MeshReadError
 from .selection import build_channels, check_component_selections
-from .sequence import available_frames, describe_frames, frame_file, map_frame
+from .sequence import UsdSource, available_frames, describe_frames, frame_file, map_frame
 from .registry import get_registry
 from .yamlio import Locations, load_yaml
 
@@ -148,6 +148,16 @@ class GeometrySpec(Strict):
                          "checked against the generator's model.")
     units: Literal["m", "cm", "mm", "km", "in", "ft"] = Field("m", description="Units of the file.")
     transform: Transform | None = None
+    usd: str | None = Field(None, description="USD file (.usd, .usda, .usdc, .usdz) holding an "
+                            "animated mesh for a kinematic element, relative to the scene file; "
+                            "with 'prim'. Frame f reads the prim's points at time code f (times "
+                            "the stage's timeCodesPerSecond / fps) in world space, like a "
+                            "'sequence' ('hold' applies); topology comes from the prim. The "
+                            "stage's metersPerUnit applies unless 'units' is given. Needs "
+                            "usd-core (pip install \"lokigraph[usd]\"); see lokigraph.usd.")
+    prim: str | None = Field(None, pattern=r"^(/[A-Za-z_][A-Za-z0-9_]*)+$",
+                             description="Path of the UsdGeomMesh prim in 'usd', e.g. "
+                             "/char/body.")
 
     @field_validator("sequence")
     @classmethod
@@ -156,14 +166,31 @@ class GeometrySpec(Strict):
 
     @model_validator(mode="after")
     def _one_source(self):
+        if self.usd is not None or self.prim is not None:
+            if self.usd is None or self.prim is None:
+                raise ValueError("'usd' and 'prim' go together (geometry: {usd: body.usd, "
+                                 "prim: /char/body})")
+            if any(x is not None for x in (self.file, self.generator, self.sequence)):
+                raise ValueError("'usd' is the geometry's only source: give no 'file', "
+                                 "'generator' or 'sequence' with it")
+            return self
         n = sum(x is not None for x in (self.file, self.generator))
         if n == 0 and self.sequence is None:
-            raise ValueError("geometry needs one of 'file', 'generator' or 'sequence'")
+            raise ValueError("geometry needs one of 'file', 'generator', 'sequence' or 'usd'")
         if n > 1:
             raise ValueError("give only one of 'file' and 'generator'")
         if self.hold != "error" and self.sequence is None:
-            raise ValueError("'hold' applies to a 'sequence' only")
+            raise ValueError("'hold' applies to a 'sequence' or 'usd' only")
         return self
+
+    def with_usd_source(self, fps: float) -> "GeometrySpec":
+        """A ``usd`` geometry as the mesh sequence it behaves as: a copy whose ``sequence`` is a
+        :class:`~lokigraph.sequence.UsdSource` (the USD file, prim and the scene's fps), so that
+        the sequence machinery (frame availability, hold, kinematic animation) reads the prim's
+        time samples. Other specs are returned unchanged."""
+        if self.usd is None or isinstance(self.sequence, UsdSource):
+            return self
+        return self.model_copy(update={"sequence": UsdSource(self.usd, self.prim, fps)})
 
 
 class ElementSpec(Strict):
@@ -178,9 +205,11 @@ class ElementSpec(Strict):
 class Output(Strict):
     dir: str = Field("out", description="Output folder, relative to the current directory. "
                      "Frames go to <dir>/<element>/<frame:04d>.<format>, with <dir>/run.json.")
-    format: Literal["obj", "ply", "vtu"] = Field("obj", description="Mesh format of frames "
-                                                 "(positions, velocities where the format holds "
-                                                 "them; hair as polylines).")
+    format: Literal["obj", "ply", "vtu", "usd"] = Field(
+        "obj", description="Format of frames: 'obj', 'ply', 'vtu' (one mesh file per element "
+        "per frame: positions, velocities where the format holds them; hair as polylines) or "
+        "'usd' (one USD stage per run, <dir>/run.usd, every element a time-sampled prim; needs "
+        "usd-core; see lokigraph.usd).")
     overwrite: bool = Field(False, description="Replace another run's output in dir (its "
                             "run.json and frame files are removed first). Without it a run into "
                             "a folder holding another run's frames is refused (CLI: --overwrite).")
@@ -190,6 +219,12 @@ class Output(Strict):
     elements: list[str] | None = Field(None, description="Elements written, by name (default: "
                                        "every dynamic element, plus every kinematic one when "
                                        "'kinematic' is true). Each must have geometry.")
+    checkpoint_every: int = Field(10, ge=0, description="Write a checkpoint (the full "
+                                  "simulation state, <dir>/checkpoints/NNNN.npz) every N frames, "
+                                  "at the end and when the run stops early; 0: never. `lokigraph "
+                                  "run SCENE --resume DIR` continues from the last one. Not for "
+                                  "USD output.")
+    checkpoint_keep: int = Field(2, ge=1, description="Checkpoints kept (the newest ones).")
 
 
 class Reference(Strict):
@@ -210,6 +245,17 @@ class Reference(Strict):
         return self
 
 
+class InitialState(Strict):
+    """Start from a frame of a previous run (Maya's "initial state")."""
+
+    from_: str = Field(alias="from", description="Output folder of the previous run (relative "
+                       "to the current directory, like output.dir).")
+    frame: int = Field(description="Frame of that run: its checkpoint at that frame gives "
+                       "positions and velocities; else the written frame files give positions "
+                       "(and velocities from PLY/VTU; zero otherwise, with a warning in "
+                       "run.json).")
+
+
 class SceneSpec(Strict):
     lokigraph: Literal[1] = Field(description="Scene format version.")
     graph: str = Field("default", description="Shipped graph name or path to a graph YAML.")
@@ -223,6 +269,11 @@ class SceneSpec(Strict):
                                                          "behavior.")
     elements: list[ElementSpec] = Field(default_factory=list)
     output: Output = Field(default_factory=Output)
+    initial_state: InitialState | None = Field(None, description="Dynamic elements start "
+                                               "from a previous run's frame: {from: DIR, "
+                                               "frame: N}.")
+    preroll: int = Field(0, ge=0, description="Frames simulated before frames.start, not "
+                         "written (the run starts at start - preroll).")
     reference: Reference | None = Field(None, description="Reference solution for `lokigraph "
                                         "bench` (ignored by run).")
     graph_overrides: dict[str, dict] = Field(
@@ -297,8 +348,13 @@ class Scene:
 def _load_geometry(spec: GeometrySpec, base: Path, frame: int | None = None) -> Geometry:
     """Geometry of ``spec`` (units and transform applied): generated (parameters validated,
     :class:`~lokigraph.generators.GeneratorParamsError`), read from ``file``, or frame
-    ``frame`` of the ``sequence`` (a missing frame follows ``hold``)."""
-    if spec.generator is not None:
+    ``frame`` of the ``sequence`` (a missing frame follows ``hold``), or of the ``usd`` prim
+    (:mod:`lokigraph.usd`; errors are :class:`~lokigraph.usd.UsdReadError`)."""
+    if spec.usd is not None:
+        from .usd import load_usd_geometry
+
+        g = load_usd_geometry(spec, base, frame)
+    elif spec.generator is not None:
         g = make_geometry(spec.generator, spec.params)
     else:
         path = spec.file
@@ -375,20 +431,23 @@ def scene_from_data(data, locs: Locations, path: Path, *, partial: bool = False)
             failed.setdefault(es.name, set()).update(bad)
         n_diags = len(diags)
         g = None
+        # a usd geometry is handled as the sequence it behaves as (GeometrySpec.with_usd_source)
+        gspec = es.geometry.with_usd_source(spec.frames.fps) if es.geometry else None
         if es.geometry is not None:
             gpath = epath + ("geometry",)
             try:
-                first = spec.frames.start if es.geometry.sequence and not (
+                first = spec.frames.start if (es.geometry.sequence or es.geometry.usd) and not (
                     es.geometry.file or es.geometry.generator) else None
-                g = _load_geometry(es.geometry, base, first)
+                g = _load_geometry(gspec, base, first)
             except GeneratorParamsError as exc:
                 for loc, msg in exc.errors:
                     where = ".".join(str(p) for p in ("params",) + tuple(loc))
                     diags.append(locs.diag(gpath + ("params",) + tuple(loc), msg,
                                            element=es.name, field=f"geometry.{where}"))
             except MeshReadError as exc:
-                key = "file" if es.geometry.file else ("sequence" if es.geometry.sequence
-                                                       else "generator")
+                key = getattr(exc, "key", None) or (
+                    "file" if es.geometry.file else ("sequence" if es.geometry.sequence
+                                                     else "generator"))
                 diags.append(locs.diag(gpath + (key,), str(exc), element=es.name,
                                        field=f"geometry.{key}"))
             except KeyError as exc:
@@ -399,8 +458,16 @@ def scene_from_data(data, locs: Locations, path: Path, *, partial: bool = False)
                     if prob.startswith("warning:"):
                         continue
                     diags.append(locs.diag(gpath, prob, element=es.name, field="geometry"))
+            if g is not None and es.geometry.usd and es.geometry.hold == "error" and comps.get(
+                    "Kinematic") is not None:  # every frame of the run needs a time sample
+                from .usd import missing_usd_frame
+
+                msg = missing_usd_frame(gspec, base, spec.frames.start, spec.frames.end)
+                if msg:
+                    diags.append(locs.diag(gpath + ("usd",), msg, element=es.name,
+                                           field="geometry.usd"))
         el = Element(es.name, i, g, comps, file, line, col, str(base),
-                     sequence=es.geometry.sequence if es.geometry else None, spec=es.geometry)
+                     sequence=gspec.sequence if gspec else None, spec=gspec)
         if g is not None:  # painted channels, then selections on this element's own vertices
             diags.extend(build_channels(es.channels, g, el, base, locs, epath + ("channels",)))
             diags.extend(check_component_selections(comps, g, el, locs, epath + ("components",)))

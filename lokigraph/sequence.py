@@ -12,6 +12,10 @@ says what a frame without a file shows:
 
 A gap inside the sequence (a missing file between two present ones) holds the file before it
 in every mode but ``error``. Positions are interpolated linearly between consecutive frames.
+
+A USD prim (``geometry: {usd: body.usd, prim: /char/body}``) is a sequence too: the scene puts a
+:class:`UsdSource` where the pattern stands (``GeometrySpec.sequence``), and the functions here
+give its frames (the time samples of its points, see :mod:`lokigraph.usd`).
 """
 
 from __future__ import annotations
@@ -26,14 +30,46 @@ import numpy as np
 HOLD_MODES = ("error", "first", "last", "loop")
 
 
+class UsdSource(str):
+    """The frames of a USD mesh prim, standing where a sequence pattern stands: the string is
+    the USD file (relative to the scene file); ``prim`` is the prim path and ``fps`` the scene's
+    frame rate (time code of frame f: f * the stage's timeCodesPerSecond / fps)."""
+
+    def __new__(cls, usd: str, prim: str, fps: float | None = None):
+        s = super().__new__(cls, usd)
+        s.prim = prim
+        s.fps = fps
+        return s
+
+    def __reduce__(self):
+        return (UsdSource, (str(self), self.prim, self.fps))
+
+    def __repr__(self):
+        return f"UsdSource({str(self)!r}, prim={self.prim!r}, fps={self.fps!r})"
+
+
 def frame_file(pattern: str, frame: int) -> str:
-    """The file name of ``frame`` (pattern checked by lokigraph.scene.check_sequence_pattern)."""
+    """The file name of ``frame`` (pattern checked by lokigraph.scene.check_sequence_pattern;
+    a :class:`UsdSource` gives its USD file for every frame)."""
+    if isinstance(pattern, UsdSource):
+        return str(pattern)
     return pattern.format(frame=int(frame))
 
 
 def available_frames(pattern: str, base: Path) -> np.ndarray | None:
     """Sorted frame numbers that have a file, from one directory listing; None when the
-    directory part of the pattern holds ``{frame}`` or cannot be listed."""
+    directory part of the pattern holds ``{frame}`` or cannot be listed.
+
+    For a :class:`UsdSource`: the frames with a time sample of the prim's points; None when the
+    points are not time-sampled (a static prim) or the file cannot be read."""
+    if isinstance(pattern, UsdSource):
+        from .geometry import MeshReadError
+        from .usd import usd_frames
+
+        try:
+            return usd_frames(Path(base) / str(pattern), pattern.prim, pattern.fps)
+        except MeshReadError:
+            return None
     head, _, tail = pattern.replace("\\", "/").rpartition("/")
     if "{" in head:
         return None

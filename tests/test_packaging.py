@@ -31,7 +31,9 @@ def make_venv_sharing_deps(env_dir: Path) -> Path:
     purelib = subprocess.run([str(py), "-c", "import sysconfig; print(sysconfig.get_path("
                               "'purelib'))"], capture_output=True, text=True, check=True)
     dirs = dict.fromkeys([*site.getsitepackages(), sysconfig.get_path("purelib"),
-                          sysconfig.get_path("platlib")])
+                          sysconfig.get_path("platlib"),
+                          # folders that .pth files of this interpreter added (shared deps)
+                          *(p for p in sys.path if p.endswith(("site-packages", "dist-packages")))])
     (Path(purelib.stdout.strip()) / "_lokigraph_test_deps.pth").write_text(
         "\n".join(d for d in dirs if Path(d).is_dir()) + "\n")
     return py

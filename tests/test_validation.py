@@ -358,7 +358,7 @@ def _has_bound(prop: dict) -> bool:
     keys = {"minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum"}
     if keys & set(prop):
         return True
-    subs = prop.get("anyOf", []) + prop.get("prefixItems", []) + (
+    subs = prop.get("anyOf", []) + prop.get("oneOf", []) + prop.get("prefixItems", []) + (
         [prop["items"]] if isinstance(prop.get("items"), dict) else [])
     return any(_has_bound(p) for p in subs if isinstance(p, dict))
 

@@ -8,7 +8,7 @@ relative velocity.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -17,6 +17,7 @@ from lokigraph.component import resolve_paintable
 from lokigraph.components.air import Drag
 from lokigraph.components.core import Dynamic
 from lokigraph.geometry import vertex_measure
+from lokigraph.keys import Keyed, step_frame
 
 from . import kernels as A
 
@@ -39,6 +40,8 @@ class _Drag:
     De_f: np.ndarray
     De_e: np.ndarray
     zero_u: np.ndarray
+    #: keyed isotropic coefficients: (vertex slice, vertex measure, Keyed), per substep
+    keyed: list = field(default_factory=list)
 
 
 class AirDrag(Behavior):
@@ -52,6 +55,7 @@ class AirDrag(Behavior):
     def bind(self, ctx, elements):
         n = ctx.model.particle_count
         iso = np.zeros(n)
+        keyed = []
         F = {k: [] for k in ("tri", "cn", "ct", "erg", "th", "lift", "kind")}
         E = {k: [] for k in ("edge", "cn", "ct", "erg", "r", "lift", "kind")}
         for e in elements:
@@ -59,7 +63,9 @@ class AirDrag(Behavior):
             g = e.geometry
             meas = vertex_measure(g) if (len(g.triangles) or len(g.edges)) else np.ones(
                 e.vertex_count)
-            if c.model == "linear":
+            if c.model == "linear" and isinstance(c.coefficient, Keyed):
+                keyed.append((e.vertex_slice, meas, c.coefficient))  # lokigraph.keys
+            elif c.model == "linear":
                 iso[e.vertex_slice] += resolve_paintable(c.coefficient, e, "Drag.coefficient") \
                     * meas
             if len(g.triangles) and (c.model != "linear" or c.lift > 0):
@@ -85,7 +91,7 @@ class AirDrag(Behavior):
                      cat(F["th"], 0), cat(F["lift"], 0), edges, cat(E["cn"], 0),
                      cat(E["ct"], 0), cat(E["erg"], (0, 10)), cat(E["r"], 0), cat(E["lift"], 0),
                      np.zeros((len(faces), 3, 3)), np.zeros((len(edges), 3, 3)),
-                     np.zeros((n, 3)))
+                     np.zeros((n, 3)), keyed)
 
     def init_state(self, model, state, data):
         state.accumulator("drag_D", (model.particle_count, 3, 3))
@@ -96,6 +102,10 @@ class AirDrag(Behavior):
         x, v = st.particle_q, st.particle_qd
         u = st.fields.get("air_velocity", d.zero_u)
         st.fields["drag_u"] = u
+        if d.keyed:
+            f = step_frame(ctx)
+            for sl, meas, key in d.keyed:
+                d.iso[sl] = key.evaluate(f) * meas
         A.accumulate_isotropic_drag(d.iso, D)
         if len(d.faces):
             _face_matrices(x, v, u, d)

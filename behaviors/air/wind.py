@@ -9,6 +9,7 @@ import numpy as np
 
 from lokigraph.behavior import Behavior
 from lokigraph.components.air import Wind
+from lokigraph.keys import Keyed, step_frame
 
 from . import kernels as A
 
@@ -36,10 +37,16 @@ class WindField(Behavior):
         u = ctx.state.fields["air_velocity"]
         tmp = ctx.state.fields["_wind_tmp"]
         t = ctx.time
-        frame = ctx.model.fps * t + ctx.frame  # approximate key time (frames)
         for w in data.winds:  # loop over wind elements, not vertices
-            speed, direction = w.speed, np.asarray(w.direction, dtype=np.float64)
-            if w.keys:
+            speed, direction = w.speed, w.direction
+            if isinstance(speed, Keyed) or any(isinstance(c, Keyed) for c in direction):
+                f = step_frame(ctx)  # keyed fields (lokigraph.keys): start of the substep
+                speed = speed.evaluate(f) if isinstance(speed, Keyed) else speed
+                direction = tuple(c.evaluate(f) if isinstance(c, Keyed) else c
+                                  for c in direction)
+            direction = np.asarray(direction, dtype=np.float64)
+            if w.keys:  # the older list of keys (linear)
+                frame = step_frame(ctx)  # the frame at the start of this substep
                 fr = [k.frame for k in w.keys]
                 sp = [k.speed if k.speed is not None else w.speed for k in w.keys]
                 speed = float(np.interp(frame, fr, sp))

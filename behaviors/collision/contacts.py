@@ -242,6 +242,24 @@ class CollisionDetect(Behavior):
         ctx.stats["contacts_ee"] = ctx.stats.get("contacts_ee", 0) + len(d.ee)
         ctx.stats["contacts_tolerant"] = ctx.stats.get("contacts_tolerant", 0) + tolerant
 
+    def state_arrays(self, d):
+        """Crossing memory of every group (which side of a kinematic sheet a vertex came from,
+        when it was last seen and crossed, and the detection-pass counter these refer to)."""
+        out = {}
+        for i, g in enumerate(d.groups):
+            out[f"{i}.side_mem"] = g.side_mem
+            out[f"{i}.side_seen"] = g.side_seen
+            out[f"{i}.crossed"] = g.crossed
+            out[f"{i}.stamp"] = np.array(g.stamp, np.int64)
+        return out
+
+    def load_state_arrays(self, d, arrays):
+        for i, g in enumerate(d.groups):
+            g.side_mem[...] = arrays[f"{i}.side_mem"]
+            g.side_seen[...] = arrays[f"{i}.side_seen"]
+            g.crossed[...] = arrays[f"{i}.crossed"]
+            g.stamp = int(arrays[f"{i}.stamp"])
+
     def describe(self, d):
         return "; ".join(f"{g.name}: {len(g.verts)} vertices, {len(g.tris)} triangles, "
                          f"{len(g.edges)} edges" for g in d.groups)

@@ -30,6 +30,7 @@ from pydantic import Field
 
 from lokigraph.behavior import Behavior, Params
 from lokigraph.components.core import Dynamic
+from lokigraph.keys import Keyed, step_frame
 
 from ...air.kernels import implicit_drag_update_inv_mass
 
@@ -70,6 +71,8 @@ class _NucleusData:
     kinematic: np.ndarray  # global indices of kinematic vertices
     p: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # scratch, allocated once
     plan: list | None = None
+    #: keyed Dynamic.damping: (vertex slice, Keyed), written into damp_rate every substep
+    keyed_damping: list = field(default_factory=list)
 
 
 class NucleusSolver(Behavior):
@@ -85,16 +88,25 @@ class NucleusSolver(Behavior):
     def bind(self, ctx, elements):
         m = ctx.model
         damp = np.zeros(m.particle_count)
+        keyed = []
         for e in elements:
-            damp[e.vertex_slice] = e.get(Dynamic).damping
+            d = e.get(Dynamic).damping
+            if isinstance(d, Keyed):  # lokigraph.keys: evaluated per substep
+                keyed.append((e.vertex_slice, d))
+            else:
+                damp[e.vertex_slice] = d
         return _NucleusData(damp, np.flatnonzero(~m.particle_kinematic),
                             np.flatnonzero(m.particle_kinematic),
-                            np.zeros((m.particle_count, 3)))
+                            np.zeros((m.particle_count, 3)), keyed_damping=keyed)
 
     def step(self, ctx, data):
         m, st, ctl = ctx.model, ctx.state, ctx.control
         h = ctx.dt
         x, v = st.particle_q, st.particle_qd
+        if data.keyed_damping:
+            f = step_frame(ctx)
+            for sl, key in data.keyed_damping:
+                data.damp_rate[sl] = key.evaluate(f)
         if data.damp_rate.any():  # damp the old velocity (not the force increment, which
             v *= np.exp(-data.damp_rate * h)[:, None]  # would bias static equilibria)
         v += (h * m.particle_inv_mass)[:, None] * st.particle_f
