@@ -726,7 +726,23 @@ def vertex_normals(points: np.ndarray, triangles: np.ndarray,
     return out
 
 
+_CHAIN_MEMO: list = []  # (edges copy, n, chains) of the last few topologies written
+
+
 def curve_chains(edges: np.ndarray, n: int) -> list[np.ndarray]:
+    """:func:`_curve_chains`, remembered for the last few topologies: a run writes the same
+    strands every frame, so the walk over edges happens once per run, not once per frame."""
+    e = np.asarray(edges, np.int64)
+    for key, kn, chains in _CHAIN_MEMO:
+        if kn == n and key.shape == e.shape and np.array_equal(key, e):
+            return chains
+    chains = _curve_chains(e, n)
+    _CHAIN_MEMO.insert(0, (e.copy(), n, chains))
+    del _CHAIN_MEMO[4:]
+    return chains
+
+
+def _curve_chains(edges: np.ndarray, n: int) -> list[np.ndarray]:
     """Split curve edges into chains (strands): maximal paths through vertices of degree 2.
 
     Returns a list of vertex index arrays, each a polyline. A closed loop repeats its first
