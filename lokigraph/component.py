@@ -23,7 +23,7 @@ from .errors import Diagnostic
 from .keys import Keyed, KeyedFloat, _bounded_keyed, keyable, value_at  # noqa: F401
 from .selection import (MAX_INDEX, MapAttribute, MapSelection, Selection,  # noqa: F401
                         SelectionError, VertexIndex, map_from_attribute, map_from_selection,
-                        resolve_selection)
+                        map_from_vertices, resolve_selection)
 
 
 class MapFile(BaseModel):
@@ -145,15 +145,12 @@ def resolve_paintable(value, element, field_name: str = "") -> np.ndarray:
         raise TypeError(f"{field_name or 'value'} is keyed: evaluate it per substep with "
                         f"lokigraph.keys.value_at")
     if isinstance(value, MapVertices):
-        out = np.full(n, float(value.default))
-        idx = np.asarray(value.vertices, dtype=np.int64)
-        if idx.size and idx.max() >= n:
+        try:
+            return map_from_vertices(value, n)
+        except SelectionError as exc:
             raise InputError(Diagnostic(file=element.source_file, line=element.line,
                                         element=element.name, field=field_name,
-                                        message=f"vertex index {int(idx.max())} out of range "
-                                                f"(element has {n} vertices)"))
-        out[idx] = value.value
-        return out
+                                        message=str(exc))) from None
     if isinstance(value, str):
         if value not in element.channels:
             import difflib

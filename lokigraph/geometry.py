@@ -9,7 +9,6 @@ edges) or from a built-in generator. Units are converted to metres and an option
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -218,9 +217,3 @@ def vertex_measure(geo: Geometry, points: np.ndarray | None = None) -> np.ndarra
         ln = np.linalg.norm(p[e[:, 1]] - p[e[:, 0]], axis=1)
         np.add.at(out, e.ravel(), np.repeat(ln / 2.0, 2))
     return out
-
-
-# Mesh files and generators live in their own modules; re-exported here for existing imports.
-from .meshfile import read_mesh, write_mesh  # noqa: E402,F401
-from .generators import (GENERATORS, box, grid, icosphere, points, strands, tet_box,  # noqa: E402,F401
-                         tube)

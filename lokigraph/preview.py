@@ -185,7 +185,7 @@ def _frame_name(frame: int) -> str:
 def load_run(out: str | Path, frames: tuple[int, int] | None = None,
              need_rest: bool = False) -> RunData:
     """Read run.json and the frames it lists as written (within ``frames`` A:B)."""
-    from .meshfile import MeshReadError, read_mesh
+    from .meshfile import MeshReadError
 
     out = Path(out)
     rj = out / "run.json"
@@ -365,7 +365,7 @@ def _attach_rest(run: RunData) -> None:
                 rest[el.name] = np.asarray(el.geometry.points, np.float64)
     except Exception:  # noqa: BLE001 - the scene's files moved or changed: use a frame
         rest = {}
-    from .meshfile import MeshReadError, read_mesh
+    from .meshfile import MeshReadError
 
     sources = set()
     for p in run.parts:
@@ -415,7 +415,7 @@ def _speeds(run: RunData, part: Part) -> list[np.ndarray]:
     """Per frame, per vertex speed [m/s]: the written velocities, else finite differences with
     the previous written frame (the next one for the run's first frame; zero for a run of one
     frame), read from its file when it is outside the frames shown."""
-    from .meshfile import MeshReadError, read_mesh
+    from .meshfile import MeshReadError
 
     out = []
     shown = dict(zip(run.frames, part.points))

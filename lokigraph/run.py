@@ -21,7 +21,6 @@ settings, per-frame timings and solver statistics.
 from __future__ import annotations
 
 import contextlib
-import inspect
 import json
 import os
 import platform
@@ -314,15 +313,6 @@ def prepare_resume(out: Path, names: list[str]) -> None:
         _clean_temps(d)
 
 
-def _accepts_velocities(fn) -> bool:
-    try:
-        params = inspect.signature(fn).parameters
-    except (TypeError, ValueError):
-        return False
-    return "velocities" in params or any(p.kind is inspect.Parameter.VAR_KEYWORD
-                                         for p in params.values())
-
-
 def _frame_span(frames: list[int]) -> str:
     if not frames:
         return "no frames"
@@ -544,7 +534,6 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
         bar = RunProgress(start, b, show=bool(progress), verbose=verbose)
         if verbose:
             sim.on_substep = bar.substep
-    with_velocities = _accepts_velocities(write_mesh)
     sigs = _Signals()
     stage = _open_stage(out, outs, spec, a, result) if write and fmt == "usd" else None
 
@@ -558,10 +547,11 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
             for el in outs:
                 sl = el.vertex_slice
                 pts = sim.state.particle_q[sl]
-                kw = {"velocities": sim.state.particle_qd[sl]} if with_velocities else {}
+                vel = sim.state.particle_qd[sl]
                 path = out / el.name / f"{frame:04d}.{fmt}"
                 try:
-                    atomic_write(path, lambda p: write_mesh(p, pts, el.geometry, fmt, **kw))
+                    atomic_write(path, lambda p: write_mesh(p, pts, el.geometry, fmt,
+                                                            velocities=vel))
                 except OSError as exc:
                     raise OutputError(f"cannot write {path}: {_reason(exc)}",
                                       EXIT_SIMULATION) from None
@@ -614,7 +604,7 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
             try:
                 with sigs.deferred():  # signals wait until run.json is written
                     _write_run_json(compiled, out, result, record, replaced, overwrite,
-                                    with_velocities, (a, b), time.perf_counter() - t_start,
+                                    (a, b), time.perf_counter() - t_start,
                                     {"resumed_from": resumed[1]["frame"] if resumed else None,
                                      "checkpoints": cps.info(), "preroll": spec.preroll,
                                      "initial_state": None if init is None else {
@@ -667,7 +657,7 @@ def _write_stage_frame(stage, frame: int, state, result: RunResult) -> None:
 
 
 def _write_run_json(compiled, out: Path, result: RunResult, record: list, replaced, overwrite,
-                    with_velocities: bool, requested: tuple[int, int], seconds: float,
+                    requested: tuple[int, int], seconds: float,
                     extra: dict | None = None) -> None:
     spec = compiled.scene.spec
     err = result.error
@@ -693,7 +683,9 @@ def _write_run_json(compiled, out: Path, result: RunResult, record: list, replac
         "format": result.format,
         "output": {"dir": str(out), "format": result.format, "elements": result.elements,
                    "kinematic": spec.output.kinematic, "elements_requested": spec.output.elements,
-                   "overwrite": overwrite, "replaced": replaced, "velocities": with_velocities,
+                   "overwrite": overwrite, "replaced": replaced,
+                   # velocities reach the writer; PLY, VTU and USD hold them, OBJ cannot
+                   "velocities": True,
                    "usd": result.stage},
         "schedule": compiled.schedule.as_dict(),
         "total_seconds": seconds,

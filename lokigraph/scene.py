@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Annotated, Literal
 
-import numpy as np
 from pydantic import (BaseModel, BeforeValidator, ConfigDict, Field, ValidationError,
                       WithJsonSchema, field_validator, model_validator)
 
@@ -37,6 +36,7 @@ from .component import ChannelSpec, Component, pydantic_diagnostics
 from .errors import Diagnostic, InputError
 from .generators import GeneratorParamsError, make_geometry
 from .geometry import Geometry, MeshReadError
+from .meshfile import read_mesh
 from .selection import build_channels, check_component_selections
 from .sequence import UsdSource, available_frames, describe_frames, frame_file, map_frame
 from .registry import get_registry
@@ -378,7 +378,7 @@ def _load_geometry(spec: GeometrySpec, base: Path, frame: int | None = None) -> 
 
 
 def read_mesh_cached(path: Path) -> Geometry:
-    return geo_mod.read_mesh(path)
+    return read_mesh(path)
 
 
 def load_scene(path: str | Path, *, partial: bool = False) -> Scene:
@@ -413,7 +413,6 @@ def scene_from_data(data, locs: Locations, path: Path, *, partial: bool = False)
                                        "scene with 'graph: <path>' (see graphs/default.yaml)"))
     spec, failed_fields = _validate_scene_spec(data, locs, diags)
 
-    reg = get_registry()
     elements: list[Element] = []
     failed: dict[str, set[str]] = {}
     seen: dict[str, int] = {}
@@ -502,17 +501,6 @@ def _kind(value) -> str:
             int: "a number", float: "a number"}.get(type(value), "a " + type(value).__name__)
 
 
-def _plain(diags: list[Diagnostic]) -> list[Diagnostic]:
-    """pydantic's 'Input should be a valid dictionary or instance of Frames' in plain words."""
-    out = []
-    for d in diags:
-        msg = re.sub(r"Input should be a valid dictionary( or instance of \w+)?",
-                     "must be a mapping ({key: value})", d.message)
-        out.append(d if msg == d.message else Diagnostic(d.file, d.line, d.column, d.element,
-                                                         d.field, msg))
-    return out
-
-
 def _validate_scene_spec(data: dict, locs: Locations, diags: list) -> tuple[SceneSpec, set]:
     """Validate the top-level fields (elements are validated one by one elsewhere). A field in
     error is reported and replaced by its default, so that the rest can still be checked."""
@@ -524,8 +512,8 @@ def _validate_scene_spec(data: dict, locs: Locations, diags: list) -> tuple[Scen
             spec = SceneSpec.model_validate({**top, "elements": []})
             break
         except ValidationError as exc:
-            for d in _plain(pydantic_diagnostics(exc, locs, (), "", "scene",
-                                                 known_fields=SceneSpec.model_fields)):
+            for d in pydantic_diagnostics(exc, locs, (), "", "scene",
+                                          known_fields=SceneSpec.model_fields):
                 if d.field == "scene":  # a check across fields (fps * substeps)
                     where = ("substeps",) if "substeps" in top else ("frames", "fps")
                     d = locs.diag(where, d.message, field="scene")
@@ -578,9 +566,9 @@ def _element_specs(data: dict, locs: Locations, diags: list, failed: dict):
         try:
             es = ElementSpec.model_validate(body)
         except ValidationError as exc:
-            diags.extend(_plain(pydantic_diagnostics(
+            diags.extend(pydantic_diagnostics(
                 exc, locs, epath, label, "", known_fields=ElementSpec.model_fields,
-                element_for=lambda loc: (label, ".".join(str(p) for p in loc)))))
+                element_for=lambda loc: (label, ".".join(str(p) for p in loc))))
             failed.setdefault(label, set()).add("*")
             # still check the components of an element whose own fields are in error
             es = None
@@ -615,7 +603,7 @@ def _validate_components(raw: dict, epath: tuple, label: str, locs: Locations,
         try:
             comps[cname] = cls.model_validate(cdata or {})
         except ValidationError as exc:
-            diags.extend(_plain(pydantic_diagnostics(exc, locs, cpath, label, cname,
-                                                     known_fields=cls.model_fields)))
+            diags.extend(pydantic_diagnostics(exc, locs, cpath, label, cname,
+                                              known_fields=cls.model_fields))
             bad.add(cname)
     return comps, bad

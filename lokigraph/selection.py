@@ -221,6 +221,17 @@ def channel_values(geometry, name: str, component: int | None, what: str = "chan
     return out
 
 
+def vertex_mask(vertices, n: int) -> np.ndarray:
+    """Boolean mask (n,) of listed 0-based vertex indices; SelectionError past the last one."""
+    idx = np.asarray(vertices, dtype=np.int64)
+    if idx.size and idx.max() >= n:
+        raise SelectionError(f"vertex index {int(idx.max())} out of range (element has "
+                             f"{n} vertices)")
+    m = np.zeros(n, bool)
+    m[idx] = True
+    return m
+
+
 def _mask(sel: Selection, geometry) -> np.ndarray:
     n = geometry.vertex_count
     p = geometry.points
@@ -233,13 +244,7 @@ def _mask(sel: Selection, geometry) -> np.ndarray:
         m[idx[(idx >= 0) & (idx < n)]] = True
         return m
     if sel.vertices is not None:
-        idx = np.asarray(sel.vertices, dtype=np.int64)
-        if idx.size and idx.max() >= n:
-            raise SelectionError(f"vertex index {int(idx.max())} out of range (element has "
-                                 f"{n} vertices)")
-        m = np.zeros(n, bool)
-        m[idx] = True
-        return m
+        return vertex_mask(sel.vertices, n)
     if sel.channel is not None:
         v = channel_values(geometry, sel.channel, sel.component)
         m = np.ones(n, bool)
@@ -365,6 +370,14 @@ class MapAttribute(_Strict):
                                    "is).")
 
 
+def map_from_vertices(spec, n: int) -> np.ndarray:
+    """A :class:`~lokigraph.component.MapVertices` painted on ``n`` vertices: ``value`` on the
+    listed ones, ``default`` elsewhere."""
+    out = np.full(n, float(spec.default))
+    out[vertex_mask(spec.vertices, n)] = spec.value
+    return out
+
+
 def map_from_selection(spec: MapSelection, geometry) -> np.ndarray:
     out = np.full(geometry.vertex_count, float(spec.default))
     out[select_mask(spec.select, geometry)] = float(spec.value)
@@ -389,12 +402,7 @@ def build_channels(channels: dict, geometry, element, base: Path, locs, path: tu
             if isinstance(chspec, MapFile):
                 arr = load_map_file(base / chspec.file, geometry.vertex_count, element, field)
             elif isinstance(chspec, MapVertices):
-                arr = np.full(geometry.vertex_count, float(chspec.default))
-                idx = np.asarray(chspec.vertices, dtype=np.int64)
-                if idx.size and idx.max() >= geometry.vertex_count:
-                    raise SelectionError(f"vertex index {int(idx.max())} out of range (element "
-                                         f"has {geometry.vertex_count} vertices)")
-                arr[idx] = chspec.value
+                arr = map_from_vertices(chspec, geometry.vertex_count)
             elif isinstance(chspec, MapSelection):
                 arr = map_from_selection(chspec, geometry)
             elif isinstance(chspec, MapAttribute):

@@ -281,14 +281,9 @@ class StageWriter:
         root.startTimeCode = float(self.first)
         root.endTimeCode = float(self.frames[-1])
         text = root.ExportToString()
-        tmp = self.root_path.with_name(f".{ROOT_NAME}.tmp-{os.getpid()}")
-        try:
-            with open(tmp, "w", encoding="utf-8") as fh:
-                fh.write(text)
-            os.replace(tmp, self.root_path)
-        finally:
-            with contextlib.suppress(OSError):
-                tmp.unlink(missing_ok=True)
+        from .run import atomic_write
+
+        atomic_write(self.root_path, lambda p: p.write_text(text, encoding="utf-8"))
 
     @property
     def stage_path(self) -> Path | None:

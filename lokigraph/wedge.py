@@ -685,7 +685,7 @@ def _csv(rows: list[dict], keys: list[str]) -> str:
 
 def _last_frame_meshes(folder: Path) -> list:
     """(points, triangles, edges) of each written element at the last written frame."""
-    from .geometry import MeshReadError, read_mesh
+    from .meshfile import MeshReadError, read_mesh
 
     info = _read_run_json(folder)
     if not info:
@@ -864,18 +864,9 @@ def run_wedge(scene, vary, out=None, scheduler=None, workers=None, frames=None, 
     return w.run(scheduler=scheduler, workers=workers, progress=progress)
 
 
-def _frames(text: str) -> tuple[int, int]:
-    import argparse
-
-    try:
-        a, b = text.split(":")
-        return int(a), int(b)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected A:B (two frame numbers), got {text!r}") \
-            from None
-
-
 def add_parser(sub) -> None:
+    from .cli import _frames
+
     w = sub.add_parser("wedge", help="run every combination of parameter values (dask)",
                        description="Run every combination of --vary values as its own run "
                        "folder on dask.distributed; writes wedge.csv, wedge.json and "

@@ -65,7 +65,7 @@ def test_run_writes_frames_and_runjson(tmp_path):
 def test_formats_roundtrip(tmp_path, fmt):
     res = run_file(EXAMPLES / "pinned_particles.yaml", out_dir=tmp_path, fmt=fmt, frames=(1, 2),
                    progress=False)
-    from lokigraph.geometry import read_mesh
+    from lokigraph.meshfile import read_mesh
 
     g = read_mesh(tmp_path / "cloth" / f"0002.{fmt}")
     assert np.allclose(g.points, res.state.particle_q, atol=1e-6)
@@ -188,7 +188,8 @@ def test_kinematic_keys_follow_animation(scene_file):
 
 
 def test_kinematic_sequence(tmp_path):
-    from lokigraph.geometry import box, write_mesh
+    from lokigraph.generators import box
+    from lokigraph.meshfile import write_mesh
 
     seq = tmp_path / "anim"
     seq.mkdir()

@@ -128,7 +128,8 @@ elements:
 
 
 def _write_sequence(tmp_path, frames):
-    from lokigraph.geometry import box, write_mesh
+    from lokigraph.generators import box
+    from lokigraph.meshfile import write_mesh
 
     seq = tmp_path / "anim"
     seq.mkdir(exist_ok=True)

@@ -22,7 +22,7 @@ from conftest import run_cli, write_scene  # noqa: E402
 from lokigraph.api import compile_file, run_file  # noqa: E402
 from lokigraph.errors import InputError  # noqa: E402
 from lokigraph.generators import grid, icosphere  # noqa: E402
-from lokigraph.geometry import read_mesh  # noqa: E402
+from lokigraph.meshfile import read_mesh  # noqa: E402
 from lokigraph.run import Simulation  # noqa: E402
 from lokigraph.scene import GeometrySpec, _load_geometry  # noqa: E402
 from lokigraph.sequence import available_frames  # noqa: E402

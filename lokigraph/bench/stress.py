@@ -162,7 +162,8 @@ def _sliver(path: Path) -> None:
 
 def _crossed(path: Path, n: int = 12) -> None:
     """One mesh of two sheets that cut through each other (and through the stress sphere)."""
-    from ..geometry import grid, write_mesh
+    from ..generators import grid
+    from ..meshfile import write_mesh
 
     a = grid((1.0, 1.0), (n, n), "xz", (0, 0, 0))
     b = grid((0.6, 0.6), (n, n), "xy", (0, 0.1, 0))
