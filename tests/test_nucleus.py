@@ -143,11 +143,18 @@ def test_catenary_converges_with_iterations(tmp_path):
 
 
 def test_pressure_sphere_holds_volume():
-    c, sim = _run(EXAMPLES / "pressure_ball.yaml")
+    """A hard volume target (1.3 x rest) holds within 0.1 % in every frame, through the drop
+    onto the ground and at rest (issue #13; pressure is projected after stretch, in every
+    iteration: before, it sat 0.15 % below and reached 0.44 % at impact)."""
+    c = compile_file(EXAMPLES / "pressure_ball.yaml")
+    sim = Simulation(c)
     tris = c.scene.element("ball").geometry.triangles
     V0 = mesh_volume(c.model.particle_q0, tris)
-    V = mesh_volume(sim.state.particle_q, tris)
-    assert V / V0 == pytest.approx(1.3, rel=0.01)
+    worst = 0.0
+    for _ in range(c.scene.spec.frames.end - c.scene.spec.frames.start):
+        sim.step_frame()
+        worst = max(worst, abs(mesh_volume(sim.state.particle_q, tris) / (1.3 * V0) - 1))
+    assert worst < 1e-3, worst
     q = sim.state.particle_q
     assert q[:, 1].min() >= -1e-9  # on the ground, not through it
     assert np.abs(sim.state.particle_qd).max() < 0.5  # came (nearly) to rest
