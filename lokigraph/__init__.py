@@ -40,3 +40,12 @@ if _cache:
     _os.environ["NUMBA_CACHE_DIR"] = _cache
     if "numba" in _sys.modules:  # numba read its config before us: make it see the new folder
         _sys.modules["numba"].core.config.reload_config()
+
+# Threads that never lose to one thread: numba's OpenMP layer (the one it picks when TBB is not
+# installed) spin-waits at every parallel-region barrier by default. On a busy machine the spinning
+# thread takes the core from the thread it waits for, and the colour-by-colour Gauss-Seidel sweeps
+# (a barrier per colour) then ran 8x slower than one thread (cloth_sphere_64, 2 cores with one
+# other CPU-bound process). Passive waiting sleeps at the barrier instead: measured on 2 cores,
+# as fast as spinning when idle and within noise of one thread under load
+# (graphs/bench/threads.md). Set before the OpenMP runtime starts; a user's setting wins.
+_os.environ.setdefault("OMP_WAIT_POLICY", "passive")

@@ -9,6 +9,9 @@ each candidate is a unilateral constraint ``n0 . (x_a - x_b) >= target`` along t
 taken at the start of the substep, with position-based Coulomb friction. Because the side is
 taken from the start of the substep and the candidates cover the whole swept motion, a fast
 object cannot tunnel (the space-time idea of Nucleus section 7) as long as the start is free.
+The final safe step checks that: after the final rounds the solved motion of the substep goes
+through the narrow phase's conservative CCD (``ccd_safe_step``); pairs that would still collide
+get contacts with the normal at the time of impact, then impact zones (see the CCD section).
 
 Multilevel exclusion: per object (dynamic-dynamic, dynamic-kinematic, self), per element pair
 (``exclude_pairs``), per vertex (the ``collide`` map) and per named vertex set
@@ -17,9 +20,11 @@ let a vertex that starts inside through to the outside. Thickness maps scale the
 vertex on the outer and inner side. Proximity-tolerant mode (Loki): a pair already closer than
 its thickness at the start of the substep only stops approaching (target = start gap).
 
-Limitations: an edge-edge pair with a one-sided collider counts only when it starts on the
-collider's outer side (by its vertex normals); friction is position based (static and kinetic
-as one coefficient).
+Limitations: the safe step runs in ``after_finalize``, so a strain limit in ``post`` mode (which
+runs after it) can undo it; impact zones move as translations, so a zone caught by a rotating
+collider may stay colliding (counted in the ``ccd_unresolved`` statistic). An edge-edge pair
+with a one-sided collider counts only when it starts on the collider's outer side (by its
+vertex normals); friction is position based (static and kinetic as one coefficient).
 """
 
 from __future__ import annotations
@@ -36,7 +41,8 @@ from lokigraph.component import resolve_paintable
 from lokigraph.components.collision import Collider, CollisionGroup, CollisionResponse
 
 from . import broadphase as bp
-from .narrowphase import _pt_tri_sq, _seg_seg_sq
+from .narrowphase import (_alloc_ws, _ccd_query, _pt_tri_sq, _seg_seg_sq, _set_coeffs_ee,
+                          _set_coeffs_vf, ee_ccd_batch_kernel, vf_ccd_batch_kernel)
 
 _TOL = 1e-12
 #: detection passes a vertex remembers which side of a kinematic sheet it came from after it
@@ -76,6 +82,10 @@ class _Group:
     side_mem: np.ndarray = None  # (n_vertices, n_el) int8
     side_seen: np.ndarray = None  # (n_vertices, n_el) int64
     crossed: np.ndarray = None  # (n_vertices, n_el) int64: pass in which the vertex was crossed
+    # scratch of one detection pass: distance [m] to the plane of the nearest triangle of each
+    # remembering element the vertex projects onto, and its side (+1/-1); reset after the pass
+    near_d: np.ndarray = None  # (n_vertices, n_el) float64, inf when unset
+    near_s: np.ndarray = None  # (n_vertices, n_el) int8
     stamp: int = 1
     buf_vf: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
     buf_ee: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
@@ -100,6 +110,11 @@ class _Contacts:
     damping: float = 0.0
     tolerant_count: int = 0
     lam: None = None
+    ccd: object = None  # _CCDWork of the final safe step, allocated on first use
+    # end positions of the motion of the last detection (the rows above cover x -> det_ref)
+    det_ref: np.ndarray = None
+    p_det: np.ndarray = None  # copy of p at a final round's detection (allocated on first use)
+    infl_min: float = -1.0  # smallest box inflation of any vertex of any group [m]
 
 
 def _members(ctx, e, g):
@@ -215,7 +230,8 @@ class CollisionDetect(Behavior):
                 "edge_edge" in g.methods, g.margin, resp.strength, resp.damping,
                 resp.restitution, resp.friction_scale, recover=kin & g.recover_crossings,
                 side_mem=np.zeros((n, k), np.int8), side_seen=np.full((n, k), _NEVER),
-                crossed=np.full((n, k), _NEVER)))
+                crossed=np.full((n, k), _NEVER), near_d=np.full((n, k), np.inf),
+                near_s=np.zeros((n, k), np.int8)))
         if not groups:
             return None
         return _Contacts(groups, np.zeros((n, 3)), damping=max(g.damping for g in groups))
@@ -288,7 +304,7 @@ def _detect_group(g, x, x1, infl, v, h):
                                g.tolerant, g.th_out, g.th_in, g.friction, g.visible, g.setmask,
                                g.one_sided, x, v, h, g.restitution, g.margin, rows, nrm, tgt,
                                mu, one, g.recover, g.side_mem, g.side_seen, g.crossed,
-                               g.stamp)
+                               g.stamp, g.near_d, g.near_s)
             tol_count += tc
             vf = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, one[:k], g.strength)
     if g.do_ee and len(g.edges):
@@ -406,16 +422,37 @@ def _min_bary(p, a, b, c):
 @njit(cache=True)
 def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, th_in, fric,
                visible, setmask, one_sided, x, v, h, restitution, margin, rows, nrm, tgt, mu,
-               one, recover, side_mem, side_seen, crossed_at, stamp):
+               one, recover, side_mem, side_seen, crossed_at, stamp, near_d, near_s):
     """Keep allowed vertex-triangle candidates; record start normal, target gap, friction.
 
     A dynamic vertex near a two-sided kinematic element remembers the side it came from (set
     when the pair is first found, kept while it stays a candidate, forgotten SIDE_MEMORY passes
     after it was last one). If animation pushed it through (an impossible pinch), the contact
     points back to the remembered side and pulls it back by at most half its thickness per
-    substep, so the cloth returns once the gap reopens instead of staying on the wrong side."""
+    substep, so the cloth returns once the gap reopens instead of staying on the wrong side.
+
+    The side of an element is the side of its *nearest* triangle the vertex projects onto
+    (found in a first pass over the candidates): on a closed or curved two-sided mesh the
+    vertex is below the planes of the far triangles it also projects onto, and taking the side
+    of whichever candidate comes first would flag a vertex outside a ball as crossed."""
     k = 0
     tcount = 0
+    for r in range(cand.shape[0]):  # nearest remembering triangle per (vertex, element)
+        p = verts[cand[r, 0]]
+        t = cand[r, 1]
+        et = tri_elem[t]
+        ep = vert_elem[p]
+        if not recover[et] or recover[ep] or not allow[ep, et]:
+            continue
+        a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+        tn, area2 = _tri_normal(x, a, b, c)
+        if area2 == 0.0 or _min_bary(x[p], x[a], x[b], x[c]) < -1e-3:
+            continue
+        side = ((x[p, 0] - x[a, 0]) * tn[0] + (x[p, 1] - x[a, 1]) * tn[1]
+                + (x[p, 2] - x[a, 2]) * tn[2])
+        if abs(side) < near_d[p, et]:
+            near_d[p, et] = abs(side)
+            near_s[p, et] = 1 if side >= 0.0 else -1
     for r in range(cand.shape[0]):
         p = verts[cand[r, 0]]
         t = cand[r, 1]
@@ -458,10 +495,12 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
             # a box it is "below" the top face's plane and still outside)
             if recover[et] and not recover[ep] and area2 > 0.0 \
                     and _min_bary(x[p], x[a], x[b], x[c]) >= -1e-3:
+                near = near_s[p, et]  # the element's side: that of its nearest triangle
                 if side_seen[p, et] < stamp - SIDE_MEMORY or side_mem[p, et] == 0:
-                    side_mem[p, et] = cur  # first seen: trust the start
+                    side_mem[p, et] = near  # first seen: trust the start
                 side_seen[p, et] = stamp
-                crossed = side_mem[p, et] != cur
+                # crossed if the nearest triangle says so, through the triangles on that side
+                crossed = side_mem[p, et] != near and cur == near
             elif recover[et] and crossed_at[p, et] >= stamp - 1:
                 continue  # pushed through this sheet: only the triangles it is under pull back
             if crossed:
@@ -504,6 +543,11 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
         mu[k] = 0.5 * (fric[p] + (fric[a] + fric[b] + fric[c]) / 3.0)
         one[k] = onesd
         k += 1
+    for r in range(cand.shape[0]):  # reset the scratch for the next pass
+        p = verts[cand[r, 0]]
+        et = tri_elem[cand[r, 1]]
+        near_d[p, et] = np.inf
+        near_s[p, et] = 0
     return k, tcount
 
 
@@ -681,10 +725,414 @@ def project_ee(p, x, w, rows, nrm, target, mu, strength, damping):
     return active
 
 
+# ---------------------------------------------------------------------------------------------
+# Continuous collision detection in the loop: the final safe step
+# ---------------------------------------------------------------------------------------------
+#
+# After the final rounds, the motion x -> p of the substep is checked with the narrow phase's
+# conservative CCD for every eligible pair (found by the broad phase over x -> p, filtered like
+# the contacts, and starting on its side) that can close its start distance in this substep. A
+# pair that would come within ``d`` (a fraction of its thickness, never more than half its start
+# distance) gets a contact whose normal is taken at the time of impact, and the contacts are
+# projected again (``ccd_rounds`` rounds, each checked again). Pairs still colliding then go
+# to impact zones: the vertices of colliding pairs, merged transitively, move by one common
+# translation (that of their kinematic vertices if they have any), so that no pair inside a zone
+# moves relative to another; zones grow until the CCD finds no collision. Cost: one broad phase
+# and the CCD of the few pairs that move more than their distance, per substep; more only in
+# substeps that have hits.
+
+_CCD_ZONE_ITERS = 32  # impact-zone merges per substep at most
+
+
+@njit(cache=True)
+def _translated_clear(x, p, v, a, b, c, dd):
+    """A triangle that only translates (a static collider, a rigidly moving one) keeps its
+    plane; the vertex's signed distance to it is then linear in t, and a vertex on the same
+    side farther than dd at both ends never comes within dd of the triangle."""
+    for j in range(3):
+        da = p[a, j] - x[a, j]
+        tol = 1e-12 * (abs(x[a, j]) + abs(p[a, j]) + 1e-300)
+        if abs(p[b, j] - x[b, j] - da) > tol or abs(p[c, j] - x[c, j] - da) > tol:
+            return False
+    n = np.cross(x[b] - x[a], x[c] - x[a])
+    ln = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+    if ln <= 0.0:
+        return False
+    s0 = ((x[v, 0] - x[a, 0]) * n[0] + (x[v, 1] - x[a, 1]) * n[1]
+          + (x[v, 2] - x[a, 2]) * n[2]) / ln
+    s1 = ((p[v, 0] - p[a, 0]) * n[0] + (p[v, 1] - p[a, 1]) * n[1]
+          + (p[v, 2] - p[a, 2]) * n[2]) / ln
+    return (s0 > dd and s1 > dd) or (s0 < -dd and s1 < -dd)
+
+
+@njit(cache=True)
+def _ccd_select(rows, nrm, target, is_vf, x, p, frac, sel, dsel):
+    """Rows that start on their side (the stored normal agrees with the start separation) and
+    whose relative motion is large enough to close the start distance minus ``d``; writes
+    their row numbers to ``sel`` and their ``d`` [m] to ``dsel``; returns the count."""
+    k = 0
+    for r in range(rows.shape[0]):
+        i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+        if is_vf:
+            d2, b0, b1, b2 = _pt_tri_sq(x[i0, 0], x[i0, 1], x[i0, 2], x[i1, 0], x[i1, 1],
+                                         x[i1, 2], x[i2, 0], x[i2, 1], x[i2, 2], x[i3, 0],
+                                         x[i3, 1], x[i3, 2])
+            c0, c1, c2, c3 = 1.0, -b0, -b1, -b2
+        else:
+            d2, s, t = _seg_seg_sq(x[i0, 0], x[i0, 1], x[i0, 2], x[i1, 0], x[i1, 1], x[i1, 2],
+                                   x[i2, 0], x[i2, 1], x[i2, 2], x[i3, 0], x[i3, 1], x[i3, 2])
+            c0, c1, c2, c3 = 1.0 - s, s, -(1.0 - t), -t
+        side = 0.0
+        for j in range(3):
+            side += nrm[r, j] * (c0 * x[i0, j] + c1 * x[i1, j] + c2 * x[i2, j] + c3 * x[i3, j])
+        if side <= 0.0:
+            continue  # starts on the wrong side (crossed, inside a one-sided body) or touching
+        d0 = np.sqrt(d2)
+        dd = min(frac * max(target[r], 0.0), 0.5 * d0)
+        # largest relative motion of a point of one primitive against a point of the other
+        # (the separation moves by a convex combination of these vertex differences)
+        move = 0.0
+        na = 1 if is_vf else 2
+        for qa in range(na):
+            ia = rows[r, qa]
+            for qb in range(na, 4):
+                ib = rows[r, qb]
+                m = 0.0
+                for j in range(3):
+                    m += ((p[ia, j] - x[ia, j]) - (p[ib, j] - x[ib, j])) ** 2
+                move = max(move, m)
+        move = np.sqrt(move)
+        if move < d0 - dd:  # the distance cannot shrink by more than that: no impact
+            continue
+        # the distance is move-Lipschitz in t from both ends: it stays above
+        # (d0 + d1 - move) / 2, with d1 the distance at the end
+        if is_vf:
+            e2 = _pt_tri_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
+                            p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])[0]
+        else:
+            e2 = _seg_seg_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
+                             p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])[0]
+        if 0.5 * (d0 + np.sqrt(e2) - move) > dd:
+            continue
+        if is_vf and _translated_clear(x, p, i0, i1, i2, i3, dd):
+            continue
+        sel[k] = r
+        dsel[k] = dd
+        k += 1
+    return k
+
+
+@njit(cache=True)
+def _toi_normals(rows, nrm, is_vf, x, p, sel, toi, out_n):
+    """Contact normal at the time of impact of each hit (closest-point direction of the pair at
+    ``toi``; the primitive's normal oriented like the stored normal when they touch)."""
+    for k in range(sel.shape[0]):
+        r = sel[k]
+        t = toi[k]
+        q = np.zeros((4, 3))
+        for a in range(4):
+            i = rows[r, a]
+            for j in range(3):
+                q[a, j] = x[i, j] + t * (p[i, j] - x[i, j])
+        if is_vf:
+            d2, b0, b1, b2 = _pt_tri_sq(q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
+                                         q[2, 0], q[2, 1], q[2, 2], q[3, 0], q[3, 1], q[3, 2])
+            c0, c1, c2, c3 = 1.0, -b0, -b1, -b2
+            g = np.cross(q[2] - q[1], q[3] - q[1])
+        else:
+            d2, s, tt = _seg_seg_sq(q[0, 0], q[0, 1], q[0, 2], q[1, 0], q[1, 1], q[1, 2],
+                                    q[2, 0], q[2, 1], q[2, 2], q[3, 0], q[3, 1], q[3, 2])
+            c0, c1, c2, c3 = 1.0 - s, s, -(1.0 - tt), -tt
+            g = np.cross(q[1] - q[0], q[3] - q[2])
+        dv = c0 * q[0] + c1 * q[1] + c2 * q[2] + c3 * q[3]
+        dl = np.sqrt(d2)
+        ext = 0.0
+        for a in range(1, 4):
+            ext = max(ext, np.abs(q[a] - q[0]).max())
+        if dl > 1e-9 * ext and dl > 0.0:
+            n = dv / dl
+        else:
+            gl = np.sqrt(g[0] ** 2 + g[1] ** 2 + g[2] ** 2)
+            n = nrm[r].copy() if gl <= 0.0 else g / gl
+        if n[0] * nrm[r, 0] + n[1] * nrm[r, 1] + n[2] * nrm[r, 2] < 0.0 and not dl > 1e-9 * ext:
+            n = -n
+        out_n[k, 0] = n[0]
+        out_n[k, 1] = n[1]
+        out_n[k, 2] = n[2]
+
+
+@njit(cache=True, inline="always")
+def _find(parent, i):
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@njit(cache=True)
+def _zones_union(rows, sel, parent, inzone, touched, nt):
+    """Merge the four vertices of every hit into one impact zone (union-find); ``touched``
+    lists the vertices in a zone (``nt`` of them so far); returns the new count and whether
+    any zone grew or merged."""
+    changed = False
+    for k in range(sel.shape[0]):
+        r = sel[k]
+        for a in range(4):
+            i = rows[r, a]
+            if not inzone[i]:
+                inzone[i] = True
+                touched[nt] = i
+                nt += 1
+                changed = True
+        r0 = _find(parent, rows[r, 0])
+        for a in range(1, 4):
+            ra = _find(parent, rows[r, a])
+            if ra != r0:
+                parent[ra] = r0
+                changed = True
+    return nt, changed
+
+
+@njit(cache=True)
+def _zones_move(x, p_in, p, w, parent, touched, nt, acc):
+    """Every impact zone moves as one translation: that of its kinematic vertices if it has any
+    (it follows the collider), else its dynamic vertices' mass-weighted mean motion (momentum
+    kept). Within a zone the relative motion is then zero, so no pair of it collides. A zone
+    whose kinematic vertices do not move as one translation (a pinch between two colliders, a
+    rotating collider) cannot be made safe by a translation: its vertices keep their motion.
+    ``acc`` (n, 8) scratch: motion sums, weight, kinematic flag, first kinematic motion.
+    Returns the zones' count."""
+    for k in range(nt):
+        r = _find(parent, touched[k])
+        for j in range(8):
+            acc[r, j] = 0.0
+    for k in range(nt):
+        i = touched[k]
+        r = _find(parent, i)
+        kin = w[i] <= 0.0
+        if kin:
+            if acc[r, 4] == 0.0:  # first kinematic vertex: drop the dynamic sums
+                for j in range(4):
+                    acc[r, j] = 0.0
+                acc[r, 4] = 1.0
+                for j in range(3):
+                    acc[r, 5 + j] = p_in[i, j] - x[i, j]
+            elif acc[r, 4] == 1.0:
+                dev = 0.0
+                size = 0.0
+                for j in range(3):
+                    dev = max(dev, abs(p_in[i, j] - x[i, j] - acc[r, 5 + j]))
+                    size = max(size, abs(acc[r, 5 + j]))
+                if dev > 1e-9 * (1.0 + size):
+                    acc[r, 4] = 2.0  # kinematic vertices in conflict
+        if kin or acc[r, 4] == 0.0:
+            m = 1.0 if kin else 1.0 / w[i]
+            for j in range(3):
+                acc[r, j] += m * (p_in[i, j] - x[i, j])
+            acc[r, 3] += m
+    zones = 0
+    for k in range(nt):
+        i = touched[k]
+        r = _find(parent, i)
+        if r == i:
+            zones += 1
+        if w[i] > 0.0:
+            if acc[r, 3] > 0.0 and acc[r, 4] < 2.0:
+                for j in range(3):
+                    p[i, j] = x[i, j] + acc[r, j] / acc[r, 3]
+            else:
+                for j in range(3):
+                    p[i, j] = p_in[i, j]
+    return zones
+
+
+@dataclass
+class _CCDWork:
+    """Buffers of the CCD pass (per vertex ones sized at first use; per candidate ones grown,
+    doubling, when a substep needs more)."""
+
+    parent: np.ndarray  # impact-zone union-find
+    inzone: np.ndarray
+    touched: np.ndarray
+    acc: np.ndarray  # (n, 8) zone sums
+    p_in: np.ndarray  # positions at entry of the fail-safe
+    cap: int = 0
+    sel: np.ndarray = None
+    dsel: np.ndarray = None
+    toi: np.ndarray = None
+    nrm: np.ndarray = None
+
+    def ensure(self, n):
+        if n > self.cap:
+            self.cap = max(2 * self.cap, n, 256)
+            self.sel = np.zeros(self.cap, np.int64)
+            self.dsel = np.zeros(self.cap)
+            self.toi = np.zeros(self.cap)
+            self.nrm = np.zeros((self.cap, 3))
+
+
+_EMPTY_ITERS = np.zeros(0, np.int64)
+#: below this many pairs the CCD runs on one thread (no parallel launch or barrier)
+CCD_PARALLEL_MIN = 512
+
+
+@njit(cache=True)
+def _ccd_serial(x, p, rows, sel, dsel, is_vf, toi):
+    """The narrow phase's conservative CCD of the rows ``sel`` on one thread."""
+    C, eps, fw, box, meta, heap, free = _alloc_ws()
+    for k in range(sel.shape[0]):
+        r = sel[k]
+        if is_vf:
+            S, finite, vf = _set_coeffs_vf(C, eps, x, p, rows[r, 0], rows[r, 1], rows[r, 2],
+                                           rows[r, 3])
+        else:
+            S, finite = _set_coeffs_ee(C, eps, x, p, rows[r, 0], rows[r, 1], rows[r, 2],
+                                       rows[r, 3])
+            vf = False
+        toi[k] = _ccd_query(C, eps, fw, S, np.bool_(finite), np.bool_(vf), np.float64(dsel[k]),
+                            np.float64(1e-6), np.float64(1e-10), np.int64(10_000), box, meta,
+                            heap, free)[0]
+
+
+def _ccd_hits(work, rows, nrm, target, is_vf, x, p, frac):
+    """CCD of the eligible rows over x -> p: (row numbers of the hits, their toi, their d)."""
+    n = len(rows)
+    if n == 0:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    work.ensure(n)
+    k = _ccd_select(rows, nrm, target, is_vf, x, p, frac, work.sel, work.dsel)
+    if k == 0:
+        return np.zeros(0, np.int64), np.zeros(0), np.zeros(0)
+    sel = work.sel[:k]
+    toi = work.toi[:k]
+    if k < CCD_PARALLEL_MIN:
+        _ccd_serial(x, p, rows, sel, work.dsel[:k], is_vf, toi)
+    elif is_vf:
+        vf_ccd_batch_kernel(x, p, rows[sel, 0], rows[sel, 1:], work.dsel[:k], 1e-6, 1e-10,
+                            10_000, toi, _EMPTY_ITERS)
+    else:
+        ee_ccd_batch_kernel(x, p, rows[sel, :2], rows[sel, 2:], work.dsel[:k], 1e-6, 1e-10,
+                            10_000, toi, _EMPTY_ITERS)
+    hit = toi <= 1.0
+    return sel[hit].copy(), toi[hit].copy(), work.dsel[:k][hit].copy()
+
+
+def _toi_contacts(c, work, sel, toi, is_vf, x, p):
+    """Contacts of the hits with their normal at the time of impact (rows, normals, targets,
+    friction, strength[, one-sided]) taken from the detected rows ``sel``."""
+    n = np.zeros((len(sel), 3))
+    if is_vf:
+        _toi_normals(c.vf, c.vf_n, True, x, p, sel, toi, n)
+        return (c.vf[sel], n, c.vf_target[sel], c.vf_mu[sel], c.strength[sel],
+                c.vf_onesided[sel])
+    _toi_normals(c.ee, c.ee_n, False, x, p, sel, toi, n)
+    return c.ee[sel], n, c.ee_target[sel], c.ee_mu[sel], c.ee_strength[sel]
+
+
+def _rows_cover(c, x, p, frac) -> bool:
+    """Do the packed rows (detected over x -> c.det_ref with boxes inflated by at least
+    c.infl_min) hold every pair whose motion x -> p can come within its CCD distance? Yes when
+    no vertex moved more than (2 infl_min - d_max) / 2 since that detection."""
+    ref = c.det_ref
+    if ref is None or ref.shape != p.shape:
+        return False
+    if c.infl_min < 0.0:
+        c.infl_min = min(float((np.maximum(g.th_out, g.th_in)[g.verts]).min() + 0.5 * g.margin)
+                         if len(g.verts) else np.inf for g in c.groups)
+    d_max = 0.0
+    for t in (c.vf_target, c.ee_target):
+        if len(t):
+            d_max = max(d_max, frac * float(t.max()))
+    return _max_move(ref, p) <= c.infl_min - 0.5 * d_max
+
+
+@njit(cache=True)
+def _max_move(a, b):
+    m = 0.0
+    for i in range(a.shape[0]):
+        d = (a[i, 0] - b[i, 0]) ** 2 + (a[i, 1] - b[i, 1]) ** 2 + (a[i, 2] - b[i, 2]) ** 2
+        if d > m:
+            m = d
+    return np.sqrt(m)
+
+
+def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=None):
+    """The final safe step of a substep (see the section comment): CCD of the motion x -> p,
+    ``rounds`` rounds of contacts at the time of impact, then impact zones. Modifies ``p``;
+    adds ``ccd_*`` counts to ``stats``."""
+    st = stats if stats is not None else {}
+    work = getattr(c, "ccd", None)
+    if work is None or len(work.parent) != len(x):
+        n = len(x)
+        work = c.ccd = _CCDWork(np.arange(n), np.zeros(n, np.bool_), np.zeros(n, np.int64),
+                                np.zeros((n, 8)), np.zeros((n, 3)))
+
+    def hits(detect=True):
+        if detect:
+            _detect_all(c, x, p, v, h)
+            st["ccd_detections"] = st.get("ccd_detections", 0) + 1
+        hv = _ccd_hits(work, c.vf, c.vf_n, c.vf_target, True, x, p, frac)
+        he = _ccd_hits(work, c.ee, c.ee_n, c.ee_target, False, x, p, frac)
+        return hv, he
+
+    hv, he = hits(not _rows_cover(c, x, p, frac))
+    st["ccd_hits"] = st.get("ccd_hits", 0) + len(hv[0]) + len(he[0])
+    for _ in range(rounds):
+        if not len(hv[0]) and not len(he[0]):
+            return st
+        cv = _toi_contacts(c, work, hv[0], hv[1], True, x, p) if len(hv[0]) else None
+        ce = _toi_contacts(c, work, he[0], he[1], False, x, p) if len(he[0]) else None
+        for _it in range(n_it):
+            if joint_step is not None:
+                joint_step(p)
+            if cv is not None:
+                project_vf(p, x, w, cv[0], cv[1], cv[2], cv[3], cv[4], c.damping, cv[5])
+            if ce is not None:
+                project_ee(p, x, w, ce[0], ce[1], ce[2], ce[3], ce[4], c.damping)
+            _project_contacts(c, p, x, w)
+        hv, he = hits()
+    if not len(hv[0]) and not len(he[0]):
+        return st
+    # fail-safe: impact zones (Provot 1997; Bridson et al. 2002, section 7.4, here translation
+    # only): the vertices of the hits, merged into zones, move as one; a zone with kinematic
+    # vertices follows them. Zones grow until no pair collides.
+    n = len(x)
+    parent, inzone, touched, acc, p_in = work.parent, work.inzone, work.touched, work.acc, \
+        work.p_in
+    parent[:] = np.arange(n)
+    inzone[:] = False
+    p_in[:] = p
+    nt = zones = 0
+    for _it in range(_CCD_ZONE_ITERS):
+        grew = False
+        for (sel, _t, _d), rows in ((hv, c.vf), (he, c.ee)):
+            if len(sel):
+                nt, g = _zones_union(rows, sel, parent, inzone, touched, nt)
+                grew |= g
+        if not grew:
+            break  # the same zones again (kinematic vertices in conflict): nothing to gain
+        zones = _zones_move(x, p_in, p, w, parent, touched, nt, acc)
+        hv, he = hits()
+        if not len(hv[0]) and not len(he[0]):
+            break
+    st["ccd_zone_vertices"] = st.get("ccd_zone_vertices", 0) + nt
+    st["ccd_zones"] = st.get("ccd_zones", 0) + zones
+    st["ccd_unresolved"] = st.get("ccd_unresolved", 0) + len(hv[0]) + len(he[0])
+    return st
+
+
 class CollisionParams(ConstraintParams):
     final_rounds: int = Field(2, ge=0, le=1000, description="Final collision rounds (re-detection over "
                                                    "the solved motion, then contacts only).")
     final_iterations: int = Field(4, ge=1, le=10000, description="Contact passes per final round.")
+    ccd: bool = Field(True, description="Final safe step: continuous collision detection of the "
+                      "solved motion of every substep; pairs that would collide get contacts "
+                      "with the normal at the time of impact, then impact zones.")
+    ccd_rounds: int = Field(2, ge=0, le=100, description="Rounds of contacts at the time of "
+                            "impact before the impact zones.")
+    ccd_distance: float = Field(0.1, ge=0.0, le=1.0, description="Distance [fraction of the "
+                                "pair's thickness, at most half its start distance] that counts "
+                                "as an impact in the safe step.")
 
 
 class CollisionConstraint(ConstraintBehavior):
@@ -718,8 +1166,13 @@ class CollisionConstraint(ConstraintBehavior):
         active = 0
         joint = [(b, dd) for b, dd in ctx.constraints if hasattr(b, "project_joint")]
         n_it = max([self.params.final_iterations] + [b.joint_iterations() for b, _ in joint])
+        c.det_ref = c.x1  # the rows come from the detection of CollisionDetect.step
         for _ in range(self.params.final_rounds):
             _detect_all(c, x, p, ctx.state.particle_qd, ctx.dt)
+            if c.p_det is None:
+                c.p_det = np.empty_like(p)
+            c.p_det[:] = p
+            c.det_ref = c.p_det
             for _it in range(n_it):
                 for b, dd in joint:  # strain limits solved together with the contacts
                     b.project_joint(ctx, dd, p)
@@ -729,6 +1182,22 @@ class CollisionConstraint(ConstraintBehavior):
             if active == 0:
                 break
         ctx.stats["max_final_active"] = max(ctx.stats.get("max_final_active", 0), active)
+
+    def after_finalize(self, ctx, d, p):
+        """The final safe step (CCD of the solved motion; see ``ccd_safe_step``)."""
+        if not self.params.ccd:
+            return
+        c = ctx.state.fields["contacts"]
+        joint = [(b, dd) for b, dd in ctx.constraints if hasattr(b, "project_joint")]
+        n_it = max([self.params.final_iterations] + [b.joint_iterations() for b, _ in joint])
+
+        def joint_step(q):
+            for b, dd in joint:
+                b.project_joint(ctx, dd, q)
+
+        ccd_safe_step(c, ctx.state.particle_q, p, ctx.model.particle_inv_mass,
+                      ctx.state.particle_qd, ctx.dt, self.params.ccd_distance,
+                      self.params.ccd_rounds, n_it, joint_step if joint else None, ctx.stats)
 
 
 @dataclass

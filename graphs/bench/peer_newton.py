@@ -4,6 +4,10 @@ Run (Newton lives in its own virtual environment, never imported by lokigraph)::
 
     python -m venv --system-site-packages .venv-peer && .venv-peer/bin/pip install newton
     .venv-peer/bin/python graphs/bench/peer_newton.py [--out DIR] [--quick]
+    .venv-peer/bin/python graphs/bench/peer_newton.py --collision [peer_collision options]
+
+``--collision`` runs the collision benchmark instead (cloth dropped on a sphere with
+self-collision, lokigraph against SolverStyle3D; see ``graphs/bench/peer_collision.py``).
 
 Prints a markdown table and writes ``peer_newton.json`` to ``--out`` (default
 ``bench_out/peer``). Without Newton (or with a solver that fails on CPU) the affected rows are
@@ -333,6 +337,13 @@ def table(rows) -> str:
 
 
 def main(argv=None):
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if "--collision" in argv:  # the collision benchmark (graphs/bench/peer_collision.py)
+        argv.remove("--collision")
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        import peer_collision
+
+        return peer_collision.main(argv)
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default="bench_out/peer", help="output folder for peer_newton.json")
     ap.add_argument("--quick", action="store_true", help="one setting per Newton solver")

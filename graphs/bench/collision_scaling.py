@@ -1,0 +1,108 @@
+"""Scaling of the collision scene: time per frame against vertex count, fitted exponent.
+
+Run::
+
+    .venv/bin/python graphs/bench/collision_scaling.py [--sizes 32 64 128 256] [--frames 12]
+        [--from-frame 6] [--out bench_out/scaling_collision]
+
+The scene is ``graphs/bench/cloth_sphere_64.yaml`` (cloth dropped on a sphere, self-collision on)
+with the cloth's grid resolution replaced by each size (the sphere is unchanged). Every size runs
+``--frames`` frames in this process; per size the table gives the median CPU
+(``time.process_time``) and wall ms per frame over frames ``--from-frame`` .. ``--frames`` (the
+cloth lands on the sphere around frame 6, so these are contact frames) and over frames 2 .. N,
+the vertex count, the largest contact counts, and the intersecting triangle pairs of the last
+frame (lokigraph's PenetrationCheck, outside the timed region). The exponent p is the
+least-squares slope of log(ms per frame) against log(vertex count) (t ~ n^p) over the contact
+frames, CPU and wall.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+TEMPLATE = ROOT / "graphs" / "bench" / "cloth_sphere_64.yaml"
+
+
+def run_size(n: int, frames: int, from_frame: int, folder: Path) -> dict:
+    from lokigraph.compile import compile_scene
+    from lokigraph.run import Simulation
+    from lokigraph.scene import load_scene
+
+    text = TEMPLATE.read_text().replace("resolution: [64, 64]", f"resolution: [{n}, {n}]")
+    path = folder / f"cloth_sphere_{n}.yaml"
+    path.write_text(text)
+    sim = Simulation(compile_scene(load_scene(path)))
+    check = [b for b in sim._steps if type(b.behavior).__name__ == "PenetrationCheck"]
+    sim._steps = [b for b in sim._steps if b not in check]
+    cloth = next(e for e in sim.model.elements if e.name == "cloth")
+    wall, cpu, cvf, cee = [], [], 0, 0
+    for _ in range(frames):
+        w0, c0 = time.perf_counter(), time.process_time()
+        st = sim.step_frame()
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - w0)
+        cvf = max(cvf, st.get("contacts_vf", 0))
+        cee = max(cee, st.get("contacts_ee", 0))
+    from lokigraph.behaviors.collision.intersect import find_intersections
+
+    F = np.concatenate([e.geometry.triangles + e.vertex_offset for e in sim.model.elements
+                        if e.geometry is not None and len(e.geometry.triangles)])
+    pairs = int(find_intersections(sim.state.particle_q, F, touching=False).count)
+    k = from_frame - 1
+    return {"resolution": n, "vertices": int(cloth.vertex_count),
+            "cpu_ms": 1e3 * float(np.median(cpu[k:])), "wall_ms": 1e3 * float(np.median(wall[k:])),
+            "cpu_ms_all": 1e3 * float(np.median(cpu[1:])),
+            "wall_ms_all": 1e3 * float(np.median(wall[1:])),
+            "frame1_s": wall[0], "max_contacts_vf": cvf, "max_contacts_ee": cee,
+            "finite": bool(np.isfinite(sim.state.particle_q).all()), "pairs_last_frame": pairs}
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128, 256])
+    ap.add_argument("--frames", type=int, default=12)
+    ap.add_argument("--from-frame", type=int, default=6, help="first contact frame timed")
+    ap.add_argument("--out", default="bench_out/scaling_collision")
+    args = ap.parse_args(argv)
+    if not 2 <= args.from_frame <= args.frames:
+        ap.error("--from-frame must be in 2..--frames")
+    import numba
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in args.sizes:
+            rows.append(run_size(n, args.frames, args.from_frame, Path(tmp)))
+            r = rows[-1]
+            print(f"[scaling] {n}x{n}: {r['vertices']} vertices, CPU {r['cpu_ms']:.0f} ms/frame, "
+                  f"wall {r['wall_ms']:.0f} ms/frame", flush=True)
+    v = np.log([r["vertices"] for r in rows])
+    fit = {k: float(np.polyfit(v, np.log([r[k] for r in rows]), 1)[0]) if len(rows) > 1
+           else float("nan") for k in ("cpu_ms", "wall_ms")}
+    print(f"\nnumba threads {numba.get_num_threads()}, layer {numba.threading_layer()}; "
+          f"frames {args.from_frame}..{args.frames} timed (medians)")
+    print("| res | vertices | CPU ms/frame | wall ms/frame | CPU us/vertex | CPU ms (2..N) | "
+          "max VF | max EE | pairs (last) | finite |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['resolution']} | {r['vertices']} | {r['cpu_ms']:.0f} | {r['wall_ms']:.0f} | "
+              f"{1e3 * r['cpu_ms'] / r['vertices']:.1f} | {r['cpu_ms_all']:.0f} | "
+              f"{r['max_contacts_vf']:.0f} | {r['max_contacts_ee']:.0f} | {r['pairs_last_frame']} | "
+              f"{r['finite']} |")
+    print(f"fitted exponent (t ~ n^p): CPU p = {fit['cpu_ms']:.2f}, wall p = {fit['wall_ms']:.2f}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scaling_collision.json").write_text(json.dumps(
+        {"rows": rows, "exponent": fit, "argv": sys.argv[1:]}, indent=1))
+    return rows, fit
+
+
+if __name__ == "__main__":
+    main()

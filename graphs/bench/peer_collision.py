@@ -1,0 +1,412 @@
+"""Peer benchmark for collisions: cloth dropped on a sphere with self-collision, lokigraph against
+NVIDIA Newton's SolverStyle3D (CPU), both in one run, interleaved frame by frame.
+
+Run (Newton lives in its own virtual environment, never imported by lokigraph)::
+
+    python3 -m venv --system-site-packages /tmp/venv-peer && /tmp/venv-peer/bin/pip install newton
+    # make lokigraph importable there (editable, no deps) or add a .pth, then:
+    /tmp/venv-peer/bin/python graphs/bench/peer_collision.py [--sizes 64 128] [--frames 23]
+    python graphs/bench/peer_newton.py --collision ...      # the same, from the peer script
+    .venv/bin/python graphs/bench/peer_collision.py --moving  # lokigraph only, moving collider
+
+Without Newton the Newton rows are skipped with the reason; the lokigraph rows always run.
+
+Scenes: ``graphs/bench/cloth_sphere_64.yaml`` and ``cloth_sphere_128.yaml`` (1 m cloth, 0.15
+kg/m^2, inextensible, thickness 2 mm, dropped from y = 0.6 onto a static sphere of radius 0.3,
+self-collision on, 24 fps, 23 frames). ``--moving``: ``cloth_sphere_moving_128.yaml``, the same
+128 x 128 cloth on a sphere that, once the cloth has landed (frame 6), moves along x at 2 m/s back
+and forth and spins about y (surface speed about 2 m/s): lokigraph only, against the static scene
+at the same resolution.
+
+All settings of both frameworks are created first and then stepped one frame each in turn
+(frame-level interleaving), so machine load hits every setting alike. Per setting the table gives:
+
+* CPU and wall ms/frame: medians over frames 2..N (frame 1, with JIT / kernel-cache loading, is
+  reported apart). CPU = ``time.process_time`` of this process (all its threads).
+* max edge strain: the largest (|e| - L0) / L0 over the cloth's mesh edges, max over frames.
+* inside: cloth vertices inside the sphere (closer to its centre than the inscribed radius of
+  lokigraph's sphere mesh, i.e. below every face), max over frames.
+* pairs: intersecting triangle pairs (proper crossings) among the cloth's triangles and between
+  the cloth and the sphere mesh, by ``lokigraph.behaviors.collision.intersect.find_intersections``
+  applied to both frameworks' positions; max and number of frames with any.
+* finite: all positions finite in every frame.
+
+The lokigraph timing excludes its own per-frame ``PenetrationCheck`` (the same counter is run
+outside the timed region for both frameworks).
+
+Newton model (float32, device "cpu", warp CPU kernels single-threaded): ``style3d.add_cloth_mesh``
+on exactly lokigraph's vertices and triangles (panel = rest (x, z)), lokigraph's lumped masses,
+Baraff-Witkin membrane (weft, warp, shear) = (Et, Et, Et / (2 (1 + nu))) with ``--newton-et``
+(default 1000 N/m: lokigraph's cloth is inextensible, which Style3D cannot express), bending D,
+particle radius = lokigraph's collider thickness, an analytic static sphere shape (radius 0.3)
+collided by Newton's CollisionPipeline once per frame (as in Newton's Style3D example; before
+every substep with ``--newton-collide substep``, contact margin ``--newton-margin``), Style3D's
+built-in self-collision on (its own contact radius, 3 mm).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+BENCH = ROOT / "graphs" / "bench"
+SCENES = {n: BENCH / f"cloth_sphere_{n}.yaml" for n in (32, 64, 128)}
+MOVING = BENCH / "cloth_sphere_moving_128.yaml"
+# (substeps, iterations); the scene default is 2 x 15 (graph default iterations)
+LOKI_SETTINGS = [(1, 15), (2, 15), (4, 15)]
+NEWTON_SETTINGS = [(4, 10), (8, 10)]
+
+
+# ------------------------------------------------------------------------------------ the scene
+
+class ClothSphere:
+    """The shared scene, read from the YAML through lokigraph (float64)."""
+
+    def __init__(self, path: Path):
+        from lokigraph.compile import compile_scene
+        from lokigraph.scene import load_scene
+
+        compiled = compile_scene(load_scene(path))
+        m = compiled.model
+        els = {e.name: e for e in m.elements}
+        cloth, ball = els["cloth"], els["ball"]
+        self.cloth_slice, self.ball_slice = cloth.vertex_slice, ball.vertex_slice
+        self.points = np.asarray(m.particle_q0, dtype=np.float64)
+        self.cloth_q0 = self.points[self.cloth_slice].copy()
+        self.tris = np.asarray(cloth.geometry.triangles, dtype=np.int64)
+        self.ball_tris = np.asarray(ball.geometry.triangles, dtype=np.int64)
+        self.mass = np.asarray(m.particle_mass[self.cloth_slice], dtype=np.float64)
+        shell, dyn = cloth.components["DiscreteShell"], cloth.components["Dynamic"]
+        self.density = float(dyn.mass_density)
+        self.D = float(shell.bend_resistance)
+        self.nu = float(shell.poisson_ratio)
+        self.thickness = float(cloth.components["Collider"].thickness)
+        self.friction = float(cloth.components["Collider"].friction)
+        self.gravity = tuple(float(g) for g in m.gravity)
+        self.fps = float(m.fps)
+        self.substeps = int(m.substeps)
+        spec = compiled.scene.spec
+        self.frames = int(spec.frames.end - spec.frames.start)
+        bq = self.points[self.ball_slice]
+        self.center = bq.mean(axis=0)
+        self.radius = float(np.linalg.norm(bq - self.center, axis=1).mean())
+        self.resolution = int(round(np.sqrt(len(self.tris) / 2)))
+        self.path = path
+        # cloth mesh edges and rest lengths
+        e = np.sort(np.concatenate([self.tris[:, [0, 1]], self.tris[:, [1, 2]],
+                                    self.tris[:, [2, 0]]]), axis=1)
+        self.edges = np.unique(e, axis=0)
+        self.rest = np.linalg.norm(self.cloth_q0[self.edges[:, 1]] - self.cloth_q0[self.edges[:, 0]],
+                                   axis=1)
+        self.ball_tris_global = self.ball_tris + len(self.cloth_q0)
+        self.all_tris = np.concatenate([self.tris, self.ball_tris_global])
+
+    def inscribed_radius(self, ball_q) -> float:
+        """Smallest distance from the sphere mesh's centre to its face planes [m]."""
+        c = ball_q.mean(axis=0)
+        P = ball_q[self.ball_tris]
+        n = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+        n /= np.linalg.norm(n, axis=1)[:, None]
+        return float(np.abs(np.einsum("ij,ij->i", P[:, 0] - c, n)).min())
+
+    def metrics(self, cloth_q, ball_q) -> dict:
+        """Strain, vertices inside the sphere, intersecting triangle pairs, finiteness."""
+        from lokigraph.behaviors.collision.intersect import find_intersections
+
+        q = np.asarray(cloth_q, dtype=np.float64)
+        if not np.isfinite(q).all():
+            return {"finite": False, "strain": float("nan"), "inside": -1, "pairs": -1}
+        L = np.linalg.norm(q[self.edges[:, 1]] - q[self.edges[:, 0]], axis=1)
+        strain = float(np.max((L - self.rest) / self.rest))
+        c = ball_q.mean(axis=0)
+        inside = int(np.count_nonzero(np.linalg.norm(q - c, axis=1) < self.inscribed_radius(ball_q)))
+        V = np.concatenate([q, ball_q])
+        pairs = int(find_intersections(V, self.all_tris, touching=False).count)
+        return {"finite": True, "strain": strain, "inside": inside, "pairs": pairs}
+
+
+# ----------------------------------------------------------------------------------- runners
+
+class LokiRun:
+    """One lokigraph setting, stepped frame by frame (its PenetrationCheck left out of the
+    timed frame; the shared counter runs outside)."""
+
+    framework = "lokigraph"
+
+    def __init__(self, scene: ClothSphere, substeps: int, iterations: int, label: str = "",
+                 threads: int | None = None):
+        from lokigraph.bench.sweep import _apply
+        from lokigraph.compile import compile_scene
+        from lokigraph.run import Simulation
+        from lokigraph.scene import load_scene
+
+        sc = _apply(load_scene(scene.path), {"substeps": substeps, "iterations": iterations})
+        self.sim = Simulation(compile_scene(sc))
+        self.sim._steps = [b for b in self.sim._steps
+                           if type(b.behavior).__name__ != "PenetrationCheck"]
+        self.scene = scene
+        self.threads = threads
+        self.setting = f"{substeps}x{iterations}" + (f"@{threads}t" if threads else "") + label
+        self.solver = "nucleus"
+
+    def step(self):
+        if self.threads:
+            import numba
+
+            keep = numba.get_num_threads()
+            numba.set_num_threads(self.threads)
+            try:
+                self.sim.step_frame()
+            finally:
+                numba.set_num_threads(keep)
+        else:
+            self.sim.step_frame()
+
+    def positions(self):
+        q = self.sim.state.particle_q
+        return q[self.scene.cloth_slice], q[self.scene.ball_slice]
+
+
+class NewtonRun:
+    """One Newton SolverStyle3D setting on the same cloth, static analytic sphere."""
+
+    framework = "newton"
+
+    def __init__(self, newton, wp, scene: ClothSphere, substeps: int, iterations: int,
+                 et: float, collide: str = "frame", margin: float | None = None):
+        from newton.solvers import style3d
+
+        self.wp = wp
+        t0 = time.perf_counter()
+        b = newton.ModelBuilder(up_axis=newton.Axis.Y, gravity=scene.gravity)
+        newton.solvers.SolverStyle3D.register_custom_attributes(b)
+        b.default_edge_ke = scene.D
+        q0 = scene.cloth_q0
+        panel = [wp.vec2(float(p[0]), float(p[2])) for p in q0]
+        mu = et / (2.0 * (1.0 + scene.nu))
+        style3d.add_cloth_mesh(b, pos=wp.vec3(0.0, 0.0, 0.0), rot=wp.quat_identity(),
+                               vel=wp.vec3(0.0, 0.0, 0.0), vertices=[wp.vec3(*p) for p in q0],
+                               indices=scene.tris.ravel().tolist(), density=scene.density,
+                               tri_kd=0.0, edge_kd=0.0, particle_radius=scene.thickness,
+                               panel_verts=panel, tri_aniso_ke=wp.vec3(et, et, mu), tri_ka=0.0)
+        b.particle_mass = [float(m) for m in scene.mass]
+        cfg = newton.ModelBuilder.ShapeConfig(mu=0.5)
+        b.add_shape_sphere(body=-1, xform=wp.transform(wp.vec3(*scene.center), wp.quat_identity()),
+                           radius=scene.radius, cfg=cfg)
+        self.model = b.finalize(device="cpu")
+        self.model.soft_contact_mu = scene.friction
+        S = newton.solvers
+        self.solver = S.SolverStyle3D(self.model, config=S.SolverStyle3D.Config(
+            iterations=iterations))
+        kw = {} if margin is None else {"soft_contact_margin": float(margin)}
+        self.pipeline = newton.CollisionPipeline(self.model, **kw)
+        self.collide_every_substep = collide == "substep"
+        self.contacts = self.pipeline.contacts()
+        self.s0, self.s1 = self.model.state(), self.model.state()
+        self.ctrl = self.model.control()
+        self.dt = 1.0 / (scene.fps * substeps)
+        self.substeps = substeps
+        self.setup_s = time.perf_counter() - t0
+        self.scene = scene
+        self.setting = f"{substeps}x{iterations}" + (" coll/substep" if collide == "substep"
+                                                     else "") + (f" margin {margin:g}"
+                                                                 if margin is not None else "")
+        self.ball_q = scene.points[scene.ball_slice]
+        self.solver_name = "SolverStyle3D"
+
+    def step(self):
+        self.pipeline.collide(self.s0, self.contacts)
+        for k in range(self.substeps):
+            if k and self.collide_every_substep:
+                self.pipeline.collide(self.s0, self.contacts)
+            self.s0.clear_forces()
+            self.solver.step(self.s0, self.s1, self.ctrl, self.contacts, self.dt)
+            self.s0, self.s1 = self.s1, self.s0
+        self._q = self.s0.particle_q.numpy()  # synchronises; part of a frame's cost
+
+    def positions(self):
+        return self._q.astype(np.float64), self.ball_q
+
+
+def import_newton():
+    import warp as wp
+
+    wp.config.quiet = True
+    import newton
+
+    wp.init()
+    return newton, wp
+
+
+# ------------------------------------------------------------------------------------- driver
+
+def run_interleaved(runs, frames: int, log=print) -> list[dict]:
+    """Step every run one frame in turn for ``frames`` frames; collect timings and metrics."""
+    rec = [{"wall": [], "cpu": [], "m": []} for _ in runs]
+    alive = [True] * len(runs)
+    for f in range(frames):
+        for i, r in enumerate(runs):
+            if not alive[i]:
+                continue
+            w0, c0 = time.perf_counter(), time.process_time()
+            try:
+                r.step()
+            except Exception as exc:  # noqa: BLE001 - a failing setting is reported, not fatal
+                rec[i]["error"] = f"{type(exc).__name__}: {exc}".splitlines()[0][:200]
+                alive[i] = False
+                continue
+            rec[i]["wall"].append(time.perf_counter() - w0)
+            rec[i]["cpu"].append(time.process_time() - c0)
+            rec[i]["m"].append(r.scene.metrics(*r.positions()))
+        log(f"[peer] frame {f + 1}/{frames}: " + ", ".join(
+            f"{r.framework[:4]} {r.setting} {1e3 * rec[i]['wall'][-1]:.0f}ms"
+            for i, r in enumerate(runs) if alive[i] and rec[i]["wall"]))
+    rows = []
+    for r, x in zip(runs, rec):
+        m = x["m"]
+        row = {"framework": r.framework, "solver": getattr(r, "solver_name", "nucleus"),
+               "resolution": r.scene.resolution, "scene": r.scene.path.name,
+               "setting": r.setting, "frames": len(m), "error": x.get("error")}
+        if len(x["wall"]) > 1:
+            row.update(cpu_ms=1e3 * float(np.median(x["cpu"][1:])),
+                       wall_ms=1e3 * float(np.median(x["wall"][1:])))
+        row.update(frame1_s=x["wall"][0] if x["wall"] else None,
+                   setup_s=getattr(r, "setup_s", None),
+                   finite=bool(m) and all(v["finite"] for v in m) and not x.get("error"),
+                   max_strain=max((v["strain"] for v in m), default=float("nan")),
+                   final_strain=m[-1]["strain"] if m else float("nan"),
+                   max_inside=max((v["inside"] for v in m), default=-1),
+                   max_pairs=max((v["pairs"] for v in m), default=-1),
+                   frames_with_pairs=sum(v["pairs"] != 0 for v in m),
+                   per_frame=m)
+        rows.append(row)
+    return rows
+
+
+def fmt(v, spec):
+    if v is None or (isinstance(v, float) and not np.isfinite(v)):
+        return "n/a"
+    return format(v, spec)
+
+
+def table(rows) -> str:
+    head = ("| res | framework | setting | CPU ms/frame | wall ms/frame | CPU / Style3D best | "
+            "max strain % | max inside | max pairs | frames w/ pairs | finite |")
+    lines = [head, "|" + "---|" * 11]
+    for r in rows:
+        if r.get("skipped"):
+            lines.append(f"| {r.get('resolution', '')} | {r['framework']} | {r['setting']} | "
+                         f"skipped: {r['skipped']} |||||||")
+            continue
+        fin = "yes" if r["finite"] else ("NO" + (f" ({r['error']})" if r.get("error") else ""))
+        lines.append(
+            f"| {r['resolution']} | {r['framework']} | {r['setting']} | {fmt(r.get('cpu_ms'), '.0f')}"
+            f" | {fmt(r.get('wall_ms'), '.0f')} | {fmt(r.get('ratio'), '.2f')} | "
+            f"{fmt(100 * r['max_strain'], '.1f')} | {r['max_inside']} | {r['max_pairs']} | "
+            f"{r['frames_with_pairs']}/{r['frames']} | {fin} |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128], choices=sorted(SCENES))
+    ap.add_argument("--frames", type=int, default=None, help="frames per run (default: scene's)")
+    ap.add_argument("--loki", default=None, help="lokigraph settings SUBxITER[@THREADS],... "
+                    f"(default {','.join(f'{s}x{i}' for s, i in LOKI_SETTINGS)})")
+    ap.add_argument("--newton", default=None, help="Style3D settings SUBxITER,... (default "
+                    f"{','.join(f'{s}x{i}' for s, i in NEWTON_SETTINGS)}); 'none' to skip")
+    ap.add_argument("--newton-et", type=float, default=1000.0,
+                    help="Style3D membrane stiffness E t [N/m]")
+    ap.add_argument("--newton-collide", choices=("frame", "substep"), default="frame",
+                    help="run Newton's CollisionPipeline once per frame (as in its Style3D "
+                         "example) or before every substep")
+    ap.add_argument("--newton-margin", type=float, default=None,
+                    help="Newton soft_contact_margin [m] (default: Newton's)")
+    ap.add_argument("--moving", action="store_true",
+                    help="lokigraph only: moving-collider scene vs static at 128x128")
+    ap.add_argument("--out", default="bench_out/peer", help="output folder")
+    args = ap.parse_args(argv)
+    parse = lambda s: [tuple(int(v) for v in x.split("x")) for x in s.split(",")]  # noqa: E731
+    loki = ([tuple(int(v) for v in x.replace("@", "x").split("x")) for x in args.loki.split(",")]
+            if args.loki else LOKI_SETTINGS)
+    newt = [] if args.newton == "none" else (parse(args.newton) if args.newton
+                                             else NEWTON_SETTINGS)
+    out_dir = Path(args.out)
+    t_start = time.perf_counter()
+
+    import numba
+
+    versions = {"python": platform.python_version(), "numba": numba.__version__,
+                "numba_threads": numba.config.NUMBA_NUM_THREADS,
+                "numba_threading_layer": numba.config.THREADING_LAYER}
+    newton = wp = None
+    skipped = None
+    if newt and not args.moving:
+        try:
+            newton, wp = import_newton()
+            versions.update(newton=newton.__version__, warp=wp.__version__)
+        except Exception as exc:  # noqa: BLE001
+            skipped = (f"newton not importable ({type(exc).__name__}: {exc}); use the python of "
+                       f"a venv with `pip install newton`")
+            print(f"[peer] {skipped}", flush=True)
+
+    all_rows = []
+    if args.moving:
+        scenes = [ClothSphere(SCENES[128]), ClothSphere(MOVING)]
+        frames = args.frames or scenes[0].frames
+        runs = [LokiRun(sc, *st[:2], label=" moving" if sc.path == MOVING else " static",
+                        threads=st[2] if len(st) > 2 else None) for st in loki for sc in scenes]
+        all_rows += run_interleaved(runs, frames)
+    else:
+        for n in args.sizes:
+            sc = ClothSphere(SCENES[n])
+            frames = args.frames or sc.frames
+            runs = [LokiRun(sc, *st[:2], threads=st[2] if len(st) > 2 else None) for st in loki]
+            if newton is not None:
+                for s, i in newt:
+                    try:
+                        runs.append(NewtonRun(newton, wp, sc, s, i, args.newton_et,
+                                              args.newton_collide, args.newton_margin))
+                    except Exception as exc:  # noqa: BLE001
+                        all_rows.append({"framework": "newton", "resolution": n,
+                                         "setting": f"{s}x{i}",
+                                         "skipped": f"{type(exc).__name__}: {exc}"[:200]})
+            elif skipped:
+                all_rows.append({"framework": "newton", "resolution": n, "setting": "-",
+                                 "skipped": skipped})
+            rows = run_interleaved(runs, frames)
+            best = min((r["cpu_ms"] for r in rows if r["framework"] == "newton"
+                        and r.get("cpu_ms") is not None and r["finite"]), default=None)
+            for r in rows:
+                r["ratio"] = (r["cpu_ms"] / best) if best and r.get("cpu_ms") else None
+            all_rows += rows
+
+    md = table(all_rows)
+    print()
+    print(f"Versions: {versions}")
+    print(md)
+    print("\nCPU/wall ms per frame: medians over frames 2..N (frame 1 = warm-up); max strain, "
+          "inside and pairs: max over all frames.")
+    total = time.perf_counter() - t_start
+    print(f"total {total:.0f} s")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    name = "peer_collision_moving.json" if args.moving else "peer_collision.json"
+    doc = {"versions": versions, "platform": platform.platform(), "argv": sys.argv[1:],
+           "newton_et": args.newton_et, "rows": all_rows, "total_s": total}
+    (out_dir / name).write_text(json.dumps(doc, indent=1, default=float))
+    print(f"wrote {out_dir / name}")
+    return all_rows
+
+
+if __name__ == "__main__":
+    main()
