@@ -19,17 +19,19 @@ from .attachments import (AttachmentConstraint, GoalConstraint, HardPins, Stitch
                           TetherConstraint)
 from .collision.contacts import CollisionConstraint, CollisionDetect, PenetrationCheck
 from .collision.shapes import ShapeCollisionConstraint
-from .coupling import FluidCoupling
+from .coupling import FluidCoupling, FluidTwoWay
 from .forces import Gravity, RestSpringForce
 from .materials import (BendConstraint, PressureConstraint, PressureForce, RigidConstraint,
-                        ShearConstraint, StrainLimitConstraint, StretchConstraint,
+                        RodConstraint, ShearConstraint, StrainLimitConstraint, StretchConstraint,
                         TetVolumeConstraint)
 from .solvers.nucleus import NucleusSolver
+from .solvers.implicit import ImplicitSolver
 
 BUILTIN_BEHAVIORS = [WindField, AirDrag, Gravity, RestSpringForce, PressureForce, KinematicAnimation, HardPins,
                      StretchConstraint, TetherConstraint, ShearConstraint, BendConstraint, TetVolumeConstraint,
                      GoalConstraint, AttachmentConstraint, StitchConstraint, PressureConstraint,
                      RigidConstraint, ShapeCollisionConstraint, CollisionDetect, CollisionConstraint,
-                     PenetrationCheck, FluidCoupling, StrainLimitConstraint, NucleusSolver]
+                     PenetrationCheck, FluidCoupling, FluidTwoWay, StrainLimitConstraint, RodConstraint, NucleusSolver,
+                     ImplicitSolver]
 
 __all__ = ["BUILTIN_BEHAVIORS"] + [c.__name__ for c in BUILTIN_BEHAVIORS]

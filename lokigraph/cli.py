@@ -97,6 +97,8 @@ def _parser() -> argparse.ArgumentParser:
                     "per frame against vertex count, fitted exponent, memory per vertex")
     bn.add_argument("--sizes", type=_ints, default="32,64,128,256",
                     help="--scaling grid resolutions")
+    bn.add_argument("--fluid", type=int, metavar="N", help="time the pressure solve of an N^3 "
+                    "fluid grid (AMG-, Jacobi- and plain CG, interleaved; writes fluid.json)")
     bn.add_argument("--out", default="bench_out", help="folder for bench.csv/json/png")
 
     stz = sub.add_parser("stress", help="cases built to break the solver; pass/fail each")
@@ -299,6 +301,19 @@ def _bench(args) -> int:
     from .bench.sweep import format_table, make_reference, run_bench, run_scaling
 
     out = Path(args.out)
+    if args.fluid is not None:
+        import json
+
+        from .bench.fluid import bench_pressure, format_pressure
+
+        if not 4 <= args.fluid <= 256:
+            raise InputError(f"bench --fluid {args.fluid}: give a grid size from 4 to 256")
+        rows = bench_pressure(args.fluid, max(args.repeats, 1))
+        print(format_pressure(rows, args.fluid, max(args.repeats, 1)))
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "fluid.json").write_text(json.dumps(rows, indent=1))
+        print(f"(results in {out}/fluid.json)")
+        return EXIT_OK
     if args.scaling:
         res = run_scaling(out, args.sizes)
         print(format_table(res["rows"]))

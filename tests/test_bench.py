@@ -99,9 +99,12 @@ def test_elastica_reference_small_load_matches_linear_beam_theory():
 
 
 def test_elastica_converges_with_substeps():
+    """With the direct per-strand Rod solve (the default) the error is the 20-segment
+    discretisation's at any substep count (measured 7.1e-4 and 7.4e-4 m at 8 and 32 substeps,
+    within 2 % of L = 0.2 m); Gauss-Seidel measured 0.17 -> 0.053 m."""
     e = [bench_setting(BENCH / "elastica.yaml", {"substeps": n, "iterations": 15})[0]
          ["position_error"] for n in (8, 32)]
-    assert e[1] < 0.5 * e[0]  # measured 0.17 -> 0.053 m
+    assert max(e) < 0.02 * 0.2 and abs(e[1] - e[0]) < 5e-4, e
 
 
 def test_terminal_velocity_error_falls_with_substeps():
@@ -170,3 +173,19 @@ def test_pruning_graph_gives_the_same_answer():
 @pytest.mark.skipif(shutil.which("lokigraph") is None, reason="console script not installed")
 def test_bench_help_runs():
     assert subprocess.run(["lokigraph", "bench", "--help"], capture_output=True).returncode == 0
+
+
+def test_bench_fluid_pressure_table(tmp_path):
+    """`lokigraph bench --fluid N` times the pressure solve of an N^3 grid with three solvers
+    and writes fluid.json; every solver reaches the tolerance and a divergence-free field."""
+    r = subprocess.run([sys.executable, "-m", "lokigraph", "bench", "--fluid", "8", "--out",
+                        str(tmp_path)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    rows = json.loads((tmp_path / "fluid.json").read_text())
+    assert [x["solver"] for x in rows] == ["amg", "jacobi", "cg"]
+    assert all(x["residual"] <= 1e-8 and x["cells"] == 512 for x in rows)
+    bad = subprocess.run([sys.executable, "-m", "lokigraph", "bench", "--fluid", "1000"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr

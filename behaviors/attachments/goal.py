@@ -149,3 +149,44 @@ class GoalConstraint(ConstraintBehavior):
 
     def describe(self, d):
         return f"{len(d.idx)} goal vertices" if d is not None else ""
+
+
+# ==============================================================================================
+# Implicit energy (behaviors/solvers/implicit/energy.py has the protocol)
+# ==============================================================================================
+from ..solvers.implicit.energy import grad_or_dummy, hess_or_dummy, row_k  # noqa: E402
+
+
+@njit(cache=True)
+def goal_energy(x, index, target, alpha, hard_k, mode, grad, hess):
+    """Goal / soft-pin energy ``k |x_v - g|^2 / 2`` (``k = 1 / alpha``; the hard penalty when
+    alpha is 0). Gradient and Hessian ``k I`` exact."""
+    E = 0.0
+    for j in range(index.shape[0]):
+        v = index[j]
+        k = row_k(alpha[j], hard_k, v, v)
+        if k == 0.0:
+            continue
+        for r in range(3):
+            dr = x[v, r] - target[j, r]
+            E += 0.5 * k * dr * dr
+            if mode >= 1:
+                grad[v, r] += k * dr
+            if mode >= 2:
+                hess[j, 0, 0, r, r] = k
+    return E
+
+
+def _goal_energy_stencils(self, ctx, d):
+    return [d.idx.reshape(-1, 1)]
+
+
+def _goal_energy(self, ctx, d, x, grad, hess, opts):
+    # animated targets are refreshed by begin_substep (the solver calls it every substep)
+    return goal_energy(x, d.idx, d.target, d.alpha, opts.hard_k, opts.mode,
+                       grad_or_dummy(grad, opts), hess_or_dummy(hess, 0, opts))
+
+
+# the implicit energy protocol on the Nucleus constraint type of this effect
+GoalConstraint.energy_stencils = _goal_energy_stencils
+GoalConstraint.energy = _goal_energy

@@ -55,3 +55,19 @@ class StitchConstraint(ConstraintBehavior):
 
     def describe(self, d):
         return f"{len(d)} stitches" if d is not None else ""
+
+
+# ==============================================================================================
+# Implicit energy: a stitch is a zero-rest spring (a weld a hard penalty), the stretch module's
+# spring energy (lokigraph.behaviors.materials.stretch.spring_energy)
+# ==============================================================================================
+from ..materials.stretch import (edge_energy, edge_energy_stencils,  # noqa: E402
+                                 edge_load_state_arrays, edge_multipliers, edge_state_arrays,
+                                 edge_update_multipliers)
+
+StitchConstraint.energy_stencils = edge_energy_stencils
+StitchConstraint.energy = edge_energy
+StitchConstraint.energy_update_multipliers = edge_update_multipliers
+StitchConstraint.energy_multipliers = edge_multipliers
+StitchConstraint.state_arrays = edge_state_arrays
+StitchConstraint.load_state_arrays = edge_load_state_arrays

@@ -225,3 +225,64 @@ class AttachmentConstraint(ConstraintBehavior):
 
     def describe(self, d):
         return f"{len(d.attach)} attached vertices" if d is not None else ""
+
+
+# ==============================================================================================
+# Implicit energy (behaviors/solvers/implicit/energy.py has the protocol)
+# ==============================================================================================
+from ..solvers.implicit.energy import grad_or_dummy, hess_or_dummy, row_k  # noqa: E402
+
+
+@njit(cache=True)
+def attach_energy(x, rows, bary, alpha, on, hard_k, mode, grad, hess):
+    """Attachment energy ``k |x_v - sum_i b_i x_ti|^2 / 2`` of rows ``(v, t0, t1, t2)`` with
+    fixed barycentrics (``k = 1 / alpha``, the hard penalty of v when alpha is 0); only rows
+    with ``on`` set. Gradient and Hessian ``k c_a c_b I`` (c = (1, -b0, -b1, -b2)) exact."""
+    E = 0.0
+    cf = np.zeros(4)
+    for j in range(rows.shape[0]):
+        if not on[j]:
+            continue
+        v = rows[j, 0]
+        k = row_k(alpha[j], hard_k, v, v)
+        if k == 0.0:
+            continue
+        cf[0] = 1.0
+        cf[1] = -bary[j, 0]
+        cf[2] = -bary[j, 1]
+        cf[3] = -bary[j, 2]
+        for r in range(3):
+            c = 0.0
+            for a in range(4):
+                c += cf[a] * x[rows[j, a], r]
+            E += 0.5 * k * c * c
+            if mode >= 1:
+                for a in range(4):
+                    grad[rows[j, a], r] += k * cf[a] * c
+            if mode >= 2:
+                for a in range(4):
+                    for b in range(4):
+                        hess[j, a, b, r, r] = k * cf[a] * cf[b]
+    return E
+
+
+def _attach_energy_stencils(self, ctx, d):
+    # sliding rows change triangles every substep: they are projected (implicit_project)
+    return [d.attach]
+
+
+def _attach_energy(self, ctx, d, x, grad, hess, opts):
+    return attach_energy(x, d.attach, d.bary, d.alpha, ~d.sliding, opts.hard_k, opts.mode,
+                         grad_or_dummy(grad, opts), hess_or_dummy(hess, 0, opts))
+
+
+def _attach_implicit_project(self, ctx, d, p):
+    """Sliding attachments after the Newton solve: onto the plane of their closest triangle."""
+    if d.sliding.any():
+        project_plane(p, ctx.model.particle_inv_mass, d.attach[d.sliding], d.bary[d.sliding])
+
+
+# the implicit energy protocol on the Nucleus constraint type of this effect
+AttachmentConstraint.energy_stencils = _attach_energy_stencils
+AttachmentConstraint.energy = _attach_energy
+AttachmentConstraint.implicit_project = _attach_implicit_project

@@ -8,10 +8,12 @@ belongs beside them): ``stretch`` (stretch and compression, stretch damping), ``
 from .bend import BendConstraint
 from .pressure import PressureConstraint, PressureForce
 from .rigid import RigidConstraint
+from .rod import RodConstraint
 from .shear import ShearConstraint
 from .strain_limit import StrainLimitConstraint
 from .stretch import StretchConstraint
 from .volume import TetVolumeConstraint
 
 __all__ = ["BendConstraint", "PressureConstraint", "PressureForce", "RigidConstraint",
-           "ShearConstraint", "StrainLimitConstraint", "StretchConstraint", "TetVolumeConstraint"]
+           "RodConstraint", "ShearConstraint", "StrainLimitConstraint", "StretchConstraint",
+           "TetVolumeConstraint"]

@@ -19,6 +19,7 @@ from lokigraph.components.materials import DiscreteShell, Rod
 from .. import topology as T
 from ..solvers.nucleus.xpbd import _INF, _LEN_EPS, _PI, _REL_EPS, _hot, _nudge, _xpbd_step, residual
 from .common import Packed, _rest
+from .rod import solved_directly
 from .shear import project_angle, project_angle_seq, residual_angle, rest_angles
 
 
@@ -252,7 +253,7 @@ class BendConstraint(ConstraintBehavior):
                 qrest.append(rest_dihedrals(X, q))
                 qa.append(1.0 / k)
                 qdrop.append(np.full(len(q), c.bend_angle_dropoff))
-            elif e.has(Rod) and len(g.edges):
+            elif e.has(Rod) and len(g.edges) and not solved_directly(e):
                 c = e.get(Rod)
                 EI = c.bend_resistance
                 if EI is None:
@@ -306,3 +307,209 @@ class BendConstraint(ConstraintBehavior):
 
     def describe(self, d):
         return ", ".join(f"{len(v)} {k}" for k, v in d.parts.items()) if d else ""
+
+
+# ==============================================================================================
+# Implicit energy (behaviors/solvers/implicit/energy.py has the protocol)
+# ==============================================================================================
+from ..solvers.implicit.energy import _scalar_term, grad_or_dummy, hess_or_dummy  # noqa: E402
+
+
+@njit(cache=True)
+def dihedral_energy(x, quads, rest, alpha, dropoff, mode, grad, hess):
+    """Hinge bending energy of quads ``(i, j, k, l)`` (discrete shells): with
+    ``C = wrap(theta - rest)`` (the signed dihedral of ``project_dihedral``), ``k = 1 / alpha``
+    and the angle dropoff ``d``, ``E = k (C^2 / 2 + d |C|^3 / (3 pi))``, whose stiffness
+    ``dE/dC / C = k (1 + d |C| / pi)`` is the Nucleus kernel's ``bend_dropoff_scale``. Gradient
+    exact (Bridson et al. 2003 angle gradients); Hessian Gauss-Newton
+    ``k (1 + 2 d |C| / pi) grad theta grad theta^T`` (PSD; exact at the rest angle)."""
+    E = 0.0
+    g = np.zeros((4, 3))
+    for j in range(quads.shape[0]):
+        al = alpha[j]
+        if not (al > 0.0 and al < _INF):
+            continue
+        kk = 1.0 / al
+        i0 = quads[j, 0]
+        i1 = quads[j, 1]
+        i2 = quads[j, 2]
+        i3 = quads[j, 3]
+        ex = x[i1, 0] - x[i0, 0]
+        ey = x[i1, 1] - x[i0, 1]
+        ez = x[i1, 2] - x[i0, 2]
+        ax = x[i2, 0] - x[i0, 0]
+        ay = x[i2, 1] - x[i0, 1]
+        az = x[i2, 2] - x[i0, 2]
+        bx = x[i3, 0] - x[i0, 0]
+        by = x[i3, 1] - x[i0, 1]
+        bz = x[i3, 2] - x[i0, 2]
+        e2 = ex * ex + ey * ey + ez * ez
+        if e2 < _LEN_EPS * _LEN_EPS:
+            continue
+        el = math.sqrt(e2)
+        nax = ey * az - ez * ay
+        nay = ez * ax - ex * az
+        naz = ex * ay - ey * ax
+        nbx = by * ez - bz * ey
+        nby = bz * ex - bx * ez
+        nbz = bx * ey - by * ex
+        na2 = nax * nax + nay * nay + naz * naz
+        nb2 = nbx * nbx + nby * nby + nbz * nbz
+        lim = _REL_EPS * e2
+        cx = nay * nbz - naz * nby
+        cy = naz * nbx - nax * nbz
+        cz = nax * nby - nay * nbx
+        theta = math.atan2(cx * ex + cy * ey + cz * ez, el * (nax * nbx + nay * nby + naz * nbz))
+        c = _wrap_angle(theta - rest[j])
+        d = dropoff[j]
+        ac = abs(c)
+        E += kk * (0.5 * c * c + d * ac * ac * ac / (3.0 * _PI))
+        if na2 <= lim * lim or nb2 <= lim * lim:
+            continue  # a wing of (almost) zero height: no direction
+        f2 = -el / na2
+        f3 = -el / nb2
+        g[2, 0] = f2 * nax
+        g[2, 1] = f2 * nay
+        g[2, 2] = f2 * naz
+        g[3, 0] = f3 * nbx
+        g[3, 1] = f3 * nby
+        g[3, 2] = f3 * nbz
+        ie2 = 1.0 / e2
+        s2 = (ax * ex + ay * ey + az * ez) * ie2
+        s3 = (bx * ex + by * ey + bz * ez) * ie2
+        for r in range(3):
+            g[1, r] = -(s2 * g[2, r] + s3 * g[3, r])
+            g[0, r] = -(g[2, r] + g[3, r]) - g[1, r]
+        _scalar_term(j, quads, 4, g, kk * (1.0 + 2.0 * d * ac / _PI), c,
+                     kk * (c + d * c * ac / _PI), mode, grad, hess)
+    return E
+
+
+@_hot
+def _skew_col(e, r, c):
+    """Entry (r, c) of the cross-product matrix [e]x (so that [e]x y = e x y)."""
+    if r == c:
+        return 0.0
+    if r == 0:
+        return -e[2] if c == 1 else e[1]
+    if r == 1:
+        return e[2] if c == 0 else -e[0]
+    return -e[1] if c == 0 else e[0]
+
+
+@njit(cache=True)
+def rod_bend_energy(x, tri, rest, alpha, mode, grad, hess):
+    """Bending energy of a curve at its interior vertices, rows ``(apex o, a, b)`` (the Nucleus
+    curve rows; ``rest`` the rest apex angle, ``alpha = l_avg / EI``), in terms of the curvature
+    binormal of discrete elastic rods (Bergou et al. 2008)
+    ``kb = 2 e0 x e1 / (|e0| |e1| + e0 . e1)``, ``e0 = o - a``, ``e1 = b - o``, ``|kb| =
+    2 tan(phi / 2)`` with phi the turning angle (pi - apex angle):
+
+    - straight at rest: ``E = k |kb|^2 / 2`` (smooth through the straight state, where the
+      angle has no gradient direction), Hessian Gauss-Newton ``k J^T J`` (J = d kb / dx, rank
+      two: both bending directions; exact at rest);
+    - curved at rest: ``E = k (|kb| - |kb0|)^2 / 2``, Hessian Gauss-Newton.
+
+    ``k = EI / l_avg``; for small angles both are the Nucleus curve energy
+    ``EI / l_avg (phi - phi0)^2 / 2`` (|kb| = phi (1 + phi^2 / 12 + ...)).
+    """
+    E = 0.0
+    J = np.zeros((3, 3, 3))  # J[v] (3 kb components x 3 coordinates) for v = o, a, b
+    e0 = np.zeros(3)
+    e1 = np.zeros(3)
+    kb = np.zeros(3)
+    gs = np.zeros((3, 3))
+    for j in range(tri.shape[0]):
+        al = alpha[j]
+        if not (al > 0.0 and al < _INF):
+            continue
+        k = 1.0 / al
+        o = tri[j, 0]
+        a = tri[j, 1]
+        b = tri[j, 2]
+        for r in range(3):
+            e0[r] = x[o, r] - x[a, r]
+            e1[r] = x[b, r] - x[o, r]
+        l0 = math.sqrt(e0[0] ** 2 + e0[1] ** 2 + e0[2] ** 2)
+        l1 = math.sqrt(e1[0] ** 2 + e1[1] ** 2 + e1[2] ** 2)
+        if l0 < _LEN_EPS or l1 < _LEN_EPS:
+            continue
+        chi = l0 * l1 + e0[0] * e1[0] + e0[1] * e1[1] + e0[2] * e1[2]
+        if chi < _REL_EPS * l0 * l1:
+            continue  # folded back on itself: kb unbounded
+        kb[0] = 2.0 * (e0[1] * e1[2] - e0[2] * e1[1]) / chi
+        kb[1] = 2.0 * (e0[2] * e1[0] - e0[0] * e1[2]) / chi
+        kb[2] = 2.0 * (e0[0] * e1[1] - e0[1] * e1[0]) / chi
+        phi0 = _PI - rest[j]
+        if phi0 > _PI - 1e-3:
+            phi0 = _PI - 1e-3
+        kb0 = 2.0 * math.tan(0.5 * phi0) if phi0 > 1e-9 else 0.0
+        nkb = math.sqrt(kb[0] ** 2 + kb[1] ** 2 + kb[2] ** 2)
+        if kb0 == 0.0:
+            E += 0.5 * k * nkb * nkb
+        else:
+            E += 0.5 * k * (nkb - kb0) ** 2
+        if mode < 1:
+            continue
+        # D0 = d kb / d e0, D1 = d kb / d e1 (3 x 3); J_a = -D0, J_o = D0 - D1, J_b = D1
+        for r in range(3):
+            for c in range(3):
+                d0 = (-2.0 * _skew_col(e1, r, c) - kb[r] * (l1 * e0[c] / l0 + e1[c])) / chi
+                d1 = (2.0 * _skew_col(e0, r, c) - kb[r] * (l0 * e1[c] / l1 + e0[c])) / chi
+                J[0, r, c] = d0 - d1
+                J[1, r, c] = -d0
+                J[2, r, c] = d1
+        if kb0 == 0.0:
+            for v in range(3):
+                i = tri[j, v]
+                for c in range(3):
+                    s = 0.0
+                    for r in range(3):
+                        s += J[v, r, c] * kb[r]
+                    grad[i, c] += k * s
+            if mode >= 2:
+                for va in range(3):
+                    for vb in range(3):
+                        for r in range(3):
+                            for s in range(3):
+                                t = 0.0
+                                for q in range(3):
+                                    t += J[va, q, r] * J[vb, q, s]
+                                hess[j, va, vb, r, s] = k * t
+        else:
+            if nkb < _REL_EPS:
+                continue  # straight now, curved at rest: d|kb| has no direction
+            for v in range(3):
+                for c in range(3):
+                    s = 0.0
+                    for r in range(3):
+                        s += J[v, r, c] * kb[r]
+                    gs[v, c] = s / nkb
+            cc = nkb - kb0
+            _scalar_term(j, tri, 3, gs, k, cc, k * cc, mode, grad, hess)
+    return E
+
+
+def _bend_energy_stencils(self, ctx, d):
+    return [d.parts[key].idx for key in ("quads", "curves") if key in d.parts]
+
+
+def _bend_energy(self, ctx, d, x, grad, hess, opts):
+    E = 0.0
+    s = 0
+    gr = grad_or_dummy(grad, opts)
+    q = d.parts.get("quads")
+    if q is not None:
+        E += dihedral_energy(x, q.idx, q.rest, q.alpha, q.alpha2, opts.mode, gr,
+                             hess_or_dummy(hess, s, opts))
+        s += 1
+    c = d.parts.get("curves")
+    if c is not None:
+        E += rod_bend_energy(x, c.idx, c.rest, c.alpha, opts.mode, gr,
+                             hess_or_dummy(hess, s, opts))
+    return E
+
+
+# the implicit energy protocol on the Nucleus constraint type of this effect
+BendConstraint.energy_stencils = _bend_energy_stencils
+BendConstraint.energy = _bend_energy

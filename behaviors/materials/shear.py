@@ -189,3 +189,78 @@ class ShearConstraint(ConstraintBehavior):
 
     def describe(self, d):
         return f"{len(d)} corners" if d is not None else "no shear stiffness: nothing bound"
+
+
+# ==============================================================================================
+# Implicit energy (behaviors/solvers/implicit/energy.py has the protocol)
+# ==============================================================================================
+from ..solvers.implicit.energy import _scalar_term, grad_or_dummy, hess_or_dummy  # noqa: E402
+
+
+@njit(cache=True)
+def angle_energy(x, tri, rest, alpha, mode, grad, hess):
+    """Energy ``(theta - gamma)^2 / (2 alpha)`` of angle rows ``(apex, a, b)`` (the shear of a
+    triangle corner). Gradient exact (the Nucleus kernel's angle gradient); Hessian blocks
+    Gauss-Newton ``k grad theta grad theta^T`` (PSD; exact at the rest angle, it leaves out
+    ``k C d2 theta``). Collinear corners (direction undefined) add energy only."""
+    E = 0.0
+    g = np.zeros((3, 3))
+    for j in range(tri.shape[0]):
+        al = alpha[j]
+        if not (al > 0.0 and al < _INF):
+            continue
+        k = 1.0 / al
+        o = tri[j, 0]
+        a = tri[j, 1]
+        b = tri[j, 2]
+        ux = x[a, 0] - x[o, 0]
+        uy = x[a, 1] - x[o, 1]
+        uz = x[a, 2] - x[o, 2]
+        vx = x[b, 0] - x[o, 0]
+        vy = x[b, 1] - x[o, 1]
+        vz = x[b, 2] - x[o, 2]
+        lu = math.sqrt(ux * ux + uy * uy + uz * uz)
+        lv = math.sqrt(vx * vx + vy * vy + vz * vz)
+        if lu < _LEN_EPS or lv < _LEN_EPS:
+            continue
+        ux /= lu
+        uy /= lu
+        uz /= lu
+        vx /= lv
+        vy /= lv
+        vz /= lv
+        cs = ux * vx + uy * vy + uz * vz
+        cxx = uy * vz - uz * vy
+        cxy = uz * vx - ux * vz
+        cxz = ux * vy - uy * vx
+        sn = math.sqrt(cxx * cxx + cxy * cxy + cxz * cxz)
+        c = math.atan2(sn, cs) - rest[j]
+        E += 0.5 * k * c * c
+        if sn < _REL_EPS:
+            continue
+        ga = -1.0 / (lu * sn)
+        gb = -1.0 / (lv * sn)
+        g[1, 0] = ga * (vx - cs * ux)
+        g[1, 1] = ga * (vy - cs * uy)
+        g[1, 2] = ga * (vz - cs * uz)
+        g[2, 0] = gb * (ux - cs * vx)
+        g[2, 1] = gb * (uy - cs * vy)
+        g[2, 2] = gb * (uz - cs * vz)
+        for r in range(3):
+            g[0, r] = -g[1, r] - g[2, r]
+        _scalar_term(j, tri, 3, g, k, c, k * c, mode, grad, hess)
+    return E
+
+
+def _shear_energy_stencils(self, ctx, d):
+    return [d.idx]
+
+
+def _shear_energy(self, ctx, d, x, grad, hess, opts):
+    return angle_energy(x, d.idx, d.rest, d.alpha, opts.mode, grad_or_dummy(grad, opts),
+                        hess_or_dummy(hess, 0, opts))
+
+
+# the implicit energy protocol on the Nucleus constraint type of this effect
+ShearConstraint.energy_stencils = _shear_energy_stencils
+ShearConstraint.energy = _shear_energy

@@ -20,6 +20,7 @@ from lokigraph.geometry import triangle_areas
 from .. import topology as T
 from ..solvers.nucleus.xpbd import _INF, _LEN_EPS, _hot, _nudge, residual
 from .common import Packed, _concat, _rest
+from .rod import solved_directly
 from .volume import rest_tet_volumes
 
 
@@ -222,7 +223,7 @@ class StretchConstraint(ConstraintBehavior):
                 ac = _compress(a, c.compression_ratio)
                 beta = np.full(len(edges), c.stretch_damping)
                 parts.append((edges + off, L * c.rest_length_scale, a, ac, beta))
-            elif e.has(Rod) and len(g.edges):
+            elif e.has(Rod) and len(g.edges) and not solved_directly(e):
                 c = e.get(Rod)
                 X = _rest(ctx, e, c)
                 edges = g.edges
@@ -265,3 +266,153 @@ class StretchConstraint(ConstraintBehavior):
 def _compress(a, ratio):
     """Compression compliance: stretch compliance / ratio; ratio 0 switches compression off."""
     return a / ratio if ratio > 0 else np.full_like(a, np.inf)
+
+
+# ==============================================================================================
+# Implicit energy (behaviors/solvers/implicit/energy.py has the protocol)
+# ==============================================================================================
+from ..solvers.implicit.energy import grad_or_dummy, hess_or_dummy, row_k  # noqa: E402
+
+
+@njit(cache=True)
+def spring_energy(x, idx, rest, alpha, alpha2, lam, hard_k, mode, grad, hess):
+    """Spring energy of edge rows ``(a, b)`` with ``C = |x_a - x_b| - L``.
+
+    A soft row: ``E = k C^2 / 2`` with ``k = 1 / alpha`` when stretched and ``1 / alpha2`` when
+    compressed (inf: off). A hard row (``alpha = 0``: inextensible, welds) is an augmented
+    Lagrangian term with the penalty ``k = hard_k`` (the larger of its two vertices) and the
+    multiplier ``lam`` [N] carried over from the previous substeps (``spring_update_lam``):
+    ``E = ((lam + k C)^2 - lam^2) / (2 k)``, bilateral when ``alpha2 = 0``, tension only
+    (``lam + k C`` clamped at 0) when compression is off (``alpha2 = inf``). At rest the
+    multiplier converges to the tension and C to 0, so a moderate, well-conditioned penalty
+    still gives an inextensible edge.
+
+    With the force ``f = lam + k C`` (tension > 0): gradient ``f n`` exact; Hessian
+    ``k n n^T + max(0, f / l) (I - n n^T)``: exact under tension, the negative transverse part of
+    a compressed row clamped to 0, so the 2x2 block set ``[[H, -H], [-H, H]]`` is PSD. A
+    zero-rest row (stitch) is ``k |x_a - x_b|^2 / 2`` exactly. Returns E [J]; adds the gradient
+    (mode >= 1), writes blocks (mode 2)."""
+    E = 0.0
+    for j in range(idx.shape[0]):
+        a = idx[j, 0]
+        b = idx[j, 1]
+        dx = x[a, 0] - x[b, 0]
+        dy = x[a, 1] - x[b, 1]
+        dz = x[a, 2] - x[b, 2]
+        ln = math.sqrt(dx * dx + dy * dy + dz * dz)
+        L = rest[j]
+        c = ln - L
+        lj = 0.0
+        if alpha[j] == 0.0:  # hard: augmented Lagrangian
+            k = row_k(0.0, hard_k, a, b)
+            if k == 0.0:
+                continue
+            lj = lam[j]
+            f = lj + k * c
+            if f < 0.0 and not alpha2[j] < _INF:  # compression off: tension only
+                E -= 0.5 * lj * lj / k
+                continue
+            E += 0.5 * (f * f - lj * lj) / k
+        else:
+            k = row_k(alpha[j] if c >= 0.0 else alpha2[j], hard_k, a, b)
+            if k == 0.0:
+                continue
+            f = k * c
+            E += 0.5 * k * c * c
+        if ln < _LEN_EPS:
+            if L > 0.0:
+                continue  # no direction: energy counted, no gradient
+            t = k
+            nx = ny = nz = 0.0
+            s = k
+        else:
+            nx = dx / ln
+            ny = dy / ln
+            nz = dz / ln
+            t = f / ln
+            if t < 0.0:
+                t = 0.0
+            s = f / ln
+        if mode >= 1:
+            grad[a, 0] += s * dx
+            grad[a, 1] += s * dy
+            grad[a, 2] += s * dz
+            grad[b, 0] -= s * dx
+            grad[b, 1] -= s * dy
+            grad[b, 2] -= s * dz
+        if mode >= 2:
+            n0 = (nx, ny, nz)
+            for r in range(3):
+                for q in range(3):
+                    hv = (k - t) * n0[r] * n0[q] + (t if r == q else 0.0)
+                    hess[j, 0, 0, r, q] = hv
+                    hess[j, 1, 1, r, q] = hv
+                    hess[j, 0, 1, r, q] = -hv
+                    hess[j, 1, 0, r, q] = -hv
+    return E
+
+
+@njit(cache=True)
+def spring_update_lam(x, idx, rest, alpha, alpha2, lam, hard_k):
+    """After a substep: ``lam += k C`` on every hard row (clamped at 0 for tension-only rows),
+    the augmented Lagrangian update of ``spring_energy``."""
+    for j in range(idx.shape[0]):
+        if alpha[j] != 0.0:
+            continue
+        a = idx[j, 0]
+        b = idx[j, 1]
+        k = row_k(0.0, hard_k, a, b)
+        d = 0.0
+        for r in range(3):
+            t = x[a, r] - x[b, r]
+            d += t * t
+        lam[j] += k * (math.sqrt(d) - rest[j])
+        if lam[j] < 0.0 and not alpha2[j] < _INF:
+            lam[j] = 0.0
+
+
+def edge_multipliers(self, d):
+    """The hard rows' multipliers [N] of a Packed set of distance rows (zero for soft rows),
+    kept on the data between substeps (the implicit solver checkpoints them)."""
+    lam = getattr(d, "_implicit_lam", None)
+    if lam is None:
+        lam = d._implicit_lam = np.zeros(len(d.idx))
+    return lam
+
+
+def edge_state_arrays(self, d):
+    """Checkpointed run state: the implicit solver's multipliers of the hard rows (zeros when
+    the scene runs the Nucleus solver)."""
+    return {"implicit_lam": edge_multipliers(self, d)} if d is not None else {}
+
+
+def edge_load_state_arrays(self, d, arrays):
+    if d is not None and "implicit_lam" in arrays:
+        edge_multipliers(self, d)[:] = arrays["implicit_lam"]
+
+
+def edge_energy_stencils(self, ctx, d):
+    """Energy stencils of a Packed set of distance rows (stretch edges, stitches)."""
+    return [d.idx]
+
+
+def edge_energy(self, ctx, d, x, grad, hess, opts):
+    """Spring energy of a Packed set of distance rows (see ``spring_energy``). Stretch damping
+    (``beta``) is not part of the energy (backward Euler damps by itself)."""
+    return spring_energy(x, d.idx, d.rest, d.alpha, d.alpha2, edge_multipliers(self, d),
+                         opts.hard_k, opts.mode, grad_or_dummy(grad, opts),
+                         hess_or_dummy(hess, 0, opts))
+
+
+def edge_update_multipliers(self, ctx, d, x, opts):
+    spring_update_lam(x, d.idx, d.rest, d.alpha, d.alpha2, edge_multipliers(self, d),
+                      opts.hard_k)
+
+
+# the implicit energy protocol on the Nucleus constraint type of this effect
+StretchConstraint.energy_stencils = edge_energy_stencils
+StretchConstraint.energy = edge_energy
+StretchConstraint.energy_update_multipliers = edge_update_multipliers
+StretchConstraint.energy_multipliers = edge_multipliers
+StretchConstraint.state_arrays = edge_state_arrays
+StretchConstraint.load_state_arrays = edge_load_state_arrays

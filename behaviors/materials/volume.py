@@ -159,3 +159,65 @@ class TetVolumeConstraint(ConstraintBehavior):
 
     def describe(self, d):
         return f"{len(d)} tetrahedra" if d is not None else ""
+
+
+# ==============================================================================================
+# Implicit energy (behaviors/solvers/implicit/energy.py has the protocol)
+# ==============================================================================================
+from ..solvers.implicit.energy import _scalar_term, grad_or_dummy, hess_or_dummy  # noqa: E402
+
+
+@njit(cache=True)
+def tet_volume_energy(x, tets, rest, alpha, mode, grad, hess):
+    """Volume energy ``(V - V0)^2 / (2 alpha)`` of every tet (``alpha = V0 / K``, K the bulk
+    modulus: ``K (V - V0)^2 / (2 V0)``, the volumetric part of linear elasticity). Gradient
+    exact; Hessian Gauss-Newton ``grad V grad V^T / alpha`` (PSD; exact at rest). The deviatoric
+    part comes from the tet edge springs of the stretch module; a stable neo-Hookean tet energy
+    is not implemented."""
+    E = 0.0
+    g = np.zeros((4, 3))
+    s = 1.0 / 6.0
+    for j in range(tets.shape[0]):
+        al = alpha[j]
+        if not (al > 0.0 and al < _INF):
+            continue
+        i0 = tets[j, 0]
+        a0 = x[tets[j, 1], 0] - x[i0, 0]
+        a1 = x[tets[j, 1], 1] - x[i0, 1]
+        a2 = x[tets[j, 1], 2] - x[i0, 2]
+        b0 = x[tets[j, 2], 0] - x[i0, 0]
+        b1 = x[tets[j, 2], 1] - x[i0, 1]
+        b2 = x[tets[j, 2], 2] - x[i0, 2]
+        c0 = x[tets[j, 3], 0] - x[i0, 0]
+        c1 = x[tets[j, 3], 1] - x[i0, 1]
+        c2 = x[tets[j, 3], 2] - x[i0, 2]
+        g[1, 0] = s * (b1 * c2 - b2 * c1)
+        g[1, 1] = s * (b2 * c0 - b0 * c2)
+        g[1, 2] = s * (b0 * c1 - b1 * c0)
+        g[2, 0] = s * (c1 * a2 - c2 * a1)
+        g[2, 1] = s * (c2 * a0 - c0 * a2)
+        g[2, 2] = s * (c0 * a1 - c1 * a0)
+        g[3, 0] = s * (a1 * b2 - a2 * b1)
+        g[3, 1] = s * (a2 * b0 - a0 * b2)
+        g[3, 2] = s * (a0 * b1 - a1 * b0)
+        for r in range(3):
+            g[0, r] = -(g[1, r] + g[2, r] + g[3, r])
+        c = a0 * g[1, 0] + a1 * g[1, 1] + a2 * g[1, 2] - rest[j]
+        k = 1.0 / al
+        E += 0.5 * k * c * c
+        _scalar_term(j, tets, 4, g, k, c, k * c, mode, grad, hess)
+    return E
+
+
+def _tet_energy_stencils(self, ctx, d):
+    return [d.idx]
+
+
+def _tet_energy(self, ctx, d, x, grad, hess, opts):
+    return tet_volume_energy(x, d.idx, d.rest, d.alpha, opts.mode, grad_or_dummy(grad, opts),
+                             hess_or_dummy(hess, 0, opts))
+
+
+# the implicit energy protocol on the Nucleus constraint type of this effect
+TetVolumeConstraint.energy_stencils = _tet_energy_stencils
+TetVolumeConstraint.energy = _tet_energy

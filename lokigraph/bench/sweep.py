@@ -43,9 +43,11 @@ def _apply(scene, setting: dict):
     for k, v in setting.items():
         if k == "substeps":
             upd["substeps"] = int(v)
-        elif k == "iterations":
+        elif k == "iterations":  # Nucleus iterations (the implicit solver ignores them)
             ov.setdefault("nucleus_solver", {})["iterations"] = int(v)
-        elif k in ("solver", "graph"):
+        elif k == "solver":  # nucleus or implicit, on the same scene
+            upd[k] = str(v)
+        elif k == "graph":
             upd[k] = str(v)
         else:
             node, _, param = k.partition(".")
@@ -68,15 +70,21 @@ def _num(v):
 
 
 def worst_strain(compiled, q) -> tuple[float | None, int]:
-    """Largest edge elongation (L / L0 - 1) over the stretch constraints and a vertex of that
-    edge; (None, -1) without stretch constraints."""
+    """Largest edge elongation (L / L0 - 1) over the stretch constraints (cloth, tet and
+    Gauss-Seidel rod edges) and the segments of directly solved rods, and a vertex of that edge;
+    (None, -1) without any."""
     out, vertex = None, -1
-    for b in compiled.schedule.find("StretchConstraint"):
-        d = b.data
-        e = np.linalg.norm(q[d.idx[:, 1]] - q[d.idx[:, 0]], axis=1) / np.maximum(d.rest, 1e-300)
+    rows = [(b.data.idx, b.data.rest) for b in compiled.schedule.find("StretchConstraint")
+            if b.data is not None]
+    rows += [(b.data.idx, b.data.rest_len) for b in compiled.schedule.find("RodConstraint")
+             if b.data is not None]
+    for idx, rest in rows:
+        if not len(idx):
+            continue
+        e = np.linalg.norm(q[idx[:, 1]] - q[idx[:, 0]], axis=1) / np.maximum(rest, 1e-300)
         j = int(e.argmax())
         if out is None or e[j] - 1 > out:
-            out, vertex = float(e[j] - 1), int(d.idx[j, 0])
+            out, vertex = float(e[j] - 1), int(idx[j, 0])
     return out, vertex
 
 
@@ -106,6 +114,7 @@ def bench_setting(path, setting: dict, frames: int | None = None,
         raise ValueError(f"the stored reference is at frame {spec.frames.end}: run "
                          f"{scene_frames} frames, not {frames}")
     times, warm = [], []
+    solver_stats: dict = {}
     for _ in range(repeats):
         compiled = compile_scene(scene)
         sim = Simulation(compiled)
@@ -119,6 +128,9 @@ def bench_setting(path, setting: dict, frames: int | None = None,
             st = sim.step_frame()
             times.append(time.perf_counter() - t)
             pen = max(pen, st.get("penetrations", 0.0))
+            for key in SOLVER_STATS:  # implicit solver: Newton / CG iterations per frame
+                if key in st:
+                    solver_stats.setdefault(key, []).append(st[key])
     q = sim.state.particle_q
     row = dict(setting)
     row.update({
@@ -131,6 +143,7 @@ def bench_setting(path, setting: dict, frames: int | None = None,
         "finite": bool(np.isfinite(q).all()),
         "max_penetrations": pen,
     })
+    row.update({f"{k}_per_frame": float(np.mean(v)) for k, v in solver_stats.items()})
     if reference is not None:
         row.update(_position_errors(q, reference))
     elif ref_spec is not None:
@@ -141,6 +154,10 @@ def bench_setting(path, setting: dict, frames: int | None = None,
                                            frames * spec.substeps)
             row["discrete_error"] = _position_errors(q[idx], x)["position_error"]
     return row, q
+
+
+#: per-frame solver statistics averaged into a bench row (``<key>_per_frame``) when present
+SOLVER_STATS = ("newton_iterations", "cg_iterations")
 
 
 def _position_errors(q, ref) -> dict:
@@ -272,7 +289,7 @@ def run_scaling(out_dir: Path, sizes=(32, 64, 128, 256), frames: int = 6, subste
 
 def format_table(rows) -> str:
     cols = [k for k in rows[0] if k not in ("frames",)]
-    cols += [k for r in rows for k in r if k not in cols and k != "frames"]
+    cols += list(dict.fromkeys(k for r in rows for k in r if k not in cols and k != "frames"))
     w = {c: max(len(c), *(len(_fmt(r.get(c, ""))) for r in rows)) for c in cols}
     lines = [" | ".join(c.ljust(w[c]) for c in cols)]
     lines.append("-+-".join("-" * w[c] for c in cols))

@@ -1,0 +1,291 @@
+"""Contacts with analytic colliders (``ShapeCollider``: plane, sphere, capsule) inside the
+implicit Newton solve, with smoothed Coulomb friction lagged from the previous Newton iterate.
+
+For every free vertex i and shape s, with d_is(x) the signed distance of x_i to the shape's
+surface pushed out by the collider's thickness (the radii ``ShapeCollisionConstraint`` binds)
+and n_is its outward normal, the incremental potential gets
+
+    penalty   P = k_i / 2 * min(d_is(x), 0)^2,          k_i = contact_stiffness * m_i / h^2
+    friction  F = mu_s * lam_is * f0(|u_is|),           u_is = (I - n n^T) (x_i - x_i^n)
+
+(IPC's smoothed friction, Li et al. 2020 eq. 14-16): ``lam_is = k_i * max(-d_is, 0)`` and
+``n_is`` are taken at the previous Newton iterate (lagged, so F is a potential within one
+Newton iteration and its line search), and f0 is C1 with f0'(y) = f1(y) = 2 y / eps - y^2 /
+eps^2 below ``eps = friction_velocity * h`` and 1 above: the friction force
+-mu lam f1(|u|) u / |u| is exact Coulomb for tangential speeds above ``friction_velocity`` and a
+stiff viscous stick below it. Hessian blocks (3x3, per vertex, so on the diagonal of the Newton
+matrix): the penalty's Gauss-Newton ``k n n^T`` (the curvature term of a sphere / capsule,
+negative inside, is dropped) and the friction's exact tangential Hessian, which is PSD for f1
+as above (eigenvalues mu lam (2/eps - 2y/eps^2) along u and mu lam f1(y)/y across).
+
+A vertex that ends the Newton solve inside a shape (the penalty leaves a small penetration,
+~ m g / k at rest) is pushed out along the normal by ``safety_project`` (no friction), and the
+solver reports the largest such move.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ...collision.narrowphase import _pt_tri_sq, _seg_seg_sq
+
+_PLANE, _SPHERE, _CAPSULE = 0, 1, 2  # as behaviors/collision/shapes.py
+
+
+@njit(cache=True)
+def _dist(x, i, s, kinds, centers, dirs, radii, lengths, n_out):
+    """Signed distance of vertex i to shape s minus its radius (+ thickness); the outward normal
+    into n_out. Returns 1e300 where the normal is undefined (on a sphere's centre)."""
+    px, py, pz = x[i, 0], x[i, 1], x[i, 2]
+    cx, cy, cz = centers[s, 0], centers[s, 1], centers[s, 2]
+    if kinds[s] == _PLANE:
+        nx, ny, nz = dirs[s, 0], dirs[s, 1], dirs[s, 2]
+        n_out[0], n_out[1], n_out[2] = nx, ny, nz
+        return (px - cx) * nx + (py - cy) * ny + (pz - cz) * nz - radii[s]
+    qx, qy, qz = cx, cy, cz
+    if kinds[s] == _CAPSULE:
+        ax, ay, az = dirs[s, 0], dirs[s, 1], dirs[s, 2]
+        t = (px - cx) * ax + (py - cy) * ay + (pz - cz) * az
+        hl = 0.5 * lengths[s]
+        t = min(max(t, -hl), hl)
+        qx, qy, qz = cx + t * ax, cy + t * ay, cz + t * az
+    rx, ry, rz = px - qx, py - qy, pz - qz
+    r = np.sqrt(rx * rx + ry * ry + rz * rz)
+    if r < 1e-15:
+        return 1e300
+    n_out[0], n_out[1], n_out[2] = rx / r, ry / r, rz / r
+    return r - radii[s]
+
+
+@njit(cache=True)
+def lag_contacts(x, fixed, kinds, centers, dirs, radii, lengths, kc, lam, nrm):
+    """Normal forces lam[i, s] = k_i max(-d, 0) and normals nrm[i, s] at x (the lagged values
+    of the friction). Returns the number of active (vertex, shape) contacts."""
+    n = x.shape[0]
+    ns = kinds.shape[0]
+    nb = np.zeros(3)
+    count = 0
+    for i in range(n):
+        for s in range(ns):
+            lam[i, s] = 0.0
+            if fixed[i]:
+                continue
+            d = _dist(x, i, s, kinds, centers, dirs, radii, lengths, nb)
+            if d < 0.0:
+                lam[i, s] = -kc[i] * d
+                nrm[i, s, 0], nrm[i, s, 1], nrm[i, s, 2] = nb[0], nb[1], nb[2]
+                count += 1
+    return count
+
+
+@njit(cache=True)
+def contact_energy(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, kc, lam, nrm, eps,
+                   mode, grad, A, diag, irls):
+    """Penalty + lagged friction energy at x (module docstring); mode >= 1 adds the gradient
+    into grad, mode >= 2 adds the 3x3 Hessian blocks into A[diag[i]]."""
+    n = x.shape[0]
+    ns = kinds.shape[0]
+    nb = np.zeros(3)
+    u = np.zeros(3)
+    E = 0.0
+    for i in range(n):
+        if fixed[i]:
+            continue
+        for s in range(ns):
+            d = _dist(x, i, s, kinds, centers, dirs, radii, lengths, nb)
+            if d < 0.0:
+                k = kc[i]
+                E += 0.5 * k * d * d
+                if mode >= 1:
+                    for r in range(3):
+                        grad[i, r] += k * d * nb[r]
+                if mode >= 2:
+                    b = diag[i]
+                    for r in range(3):
+                        for c in range(3):
+                            A[b, r, c] += k * nb[r] * nb[c]
+            L = lam[i, s]
+            mu = mus[s]
+            if L <= 0.0 or mu <= 0.0:
+                continue
+            ml = mu * L
+            # tangential displacement of the substep with the lagged normal
+            n0, n1, n2 = nrm[i, s, 0], nrm[i, s, 1], nrm[i, s, 2]
+            dx0 = x[i, 0] - x0[i, 0]
+            dx1 = x[i, 1] - x0[i, 1]
+            dx2 = x[i, 2] - x0[i, 2]
+            dn = dx0 * n0 + dx1 * n1 + dx2 * n2
+            u[0], u[1], u[2] = dx0 - dn * n0, dx1 - dn * n1, dx2 - dn * n2
+            y = np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+            if y < eps:
+                E += ml * (-y * y * y / (3.0 * eps * eps) + y * y / eps + eps / 3.0)
+                f1y = 2.0 / eps - y / (eps * eps)  # f1(y) / y
+            else:
+                E += ml * y
+                f1y = 1.0 / y
+            if mode >= 1:
+                for r in range(3):
+                    grad[i, r] += ml * f1y * u[r]
+            if mode >= 2:
+                b = diag[i]
+                if irls:
+                    cu = 0.0
+                elif y < eps:
+                    cu = ml / (eps * eps * y) if y > 0.0 else 0.0
+                else:
+                    cu = ml / (y * y * y)
+                for r in range(3):
+                    for c in range(3):
+                        p = (1.0 if r == c else 0.0) - nrm[i, s, r] * nrm[i, s, c]
+                        A[b, r, c] += ml * f1y * p - cu * u[r] * u[c]
+    return E
+
+
+@njit(cache=True)
+def safety_project(x, fixed, kinds, centers, dirs, radii, lengths):
+    """Push every free vertex inside a shape out along its normal; returns the largest move."""
+    n = x.shape[0]
+    ns = kinds.shape[0]
+    nb = np.zeros(3)
+    worst = 0.0
+    for _ in range(2):  # a second pass for vertices pushed into another shape
+        for i in range(n):
+            if fixed[i]:
+                continue
+            for s in range(ns):
+                d = _dist(x, i, s, kinds, centers, dirs, radii, lengths, nb)
+                if d < 0.0:
+                    for r in range(3):
+                        x[i, r] -= d * nb[r]
+                    if -d > worst:
+                        worst = -d
+    return worst
+
+
+# -- contact rows of the collision pipeline (CollisionDetect's vertex-face / edge-edge sets) --
+#
+# A row r couples 4 vertices with coefficients c[r] (vertex-face: 1, -b0, -b1, -b2 with the
+# closest point's barycentrics; edge-edge: 1 - s, s, -(1 - t), -t) along the contact normal n_r
+# the detection took at the start of the substep: gap C_r = n_r . sum_a c_a x_a - target_r.
+# Energy: k_r / 2 min(C_r, 0)^2 + mu_r lam_r f0(|u_r|), u_r = (I - n n^T) sum_a c_a (x_a - x_a^n),
+# with c, lam_r = k_r max(-C_r, 0) lagged from the previous Newton iterate (so the energy is
+# exactly what its gradient says within one Newton iteration). Hessian: the diagonal 3x3 blocks
+# c_a^2 (k n n^T + friction block) of the rank-structured row Hessian only (the block diagonal
+# of a PSD matrix is PSD; the pattern of the Newton matrix stays fixed): a quasi-Newton
+# direction, exact for a vertex against a kinematic collider.
+
+
+@njit(cache=True)
+def lag_rows(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam):
+    """Coefficients coef[r] (closest points at x), row stiffness kr[r] = h2k * the largest
+    mass of its free vertices, and the normal forces lam[r] at x. Returns the active count."""
+    count = 0
+    for r in range(rows.shape[0]):
+        a0, a1, a2, a3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+        if is_vf:
+            _, b0, b1, b2 = _pt_tri_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1],
+                                       x[a1, 2], x[a2, 0], x[a2, 1], x[a2, 2], x[a3, 0],
+                                       x[a3, 1], x[a3, 2])
+            coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = 1.0, -b0, -b1, -b2
+        else:
+            _, s, t = _seg_seg_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1], x[a1, 2],
+                                  x[a2, 0], x[a2, 1], x[a2, 2], x[a3, 0], x[a3, 1], x[a3, 2])
+            coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = 1.0 - s, s, -(1.0 - t), -t
+        mk = 0.0
+        for j in range(4):
+            a = rows[r, j]
+            if not fixed[a] and coef[r, j] != 0.0 and mass[a] > mk:
+                mk = mass[a]
+        kr[r] = h2k * mk
+        C = -target[r]
+        for j in range(4):
+            a = rows[r, j]
+            for q in range(3):
+                C += coef[r, j] * x[a, q] * nrm[r, q]
+        lam[r] = -kr[r] * C if C < 0.0 else 0.0
+        if C < 0.0 and mk > 0.0:
+            count += 1
+    return count
+
+
+@njit(cache=True)
+def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, grad, A, diag,
+               irls):
+    """Penalty + lagged friction energy of the contact rows at x (see above); gradient and
+    block-diagonal Hessian as ``contact_energy``."""
+    g = np.zeros(3)
+    u = np.zeros(3)
+    blk = np.zeros((3, 3))
+    E = 0.0
+    for r in range(rows.shape[0]):
+        k = kr[r]
+        if k <= 0.0:
+            continue
+        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+        C = -target[r]
+        u[:] = 0.0
+        for j in range(4):
+            a = rows[r, j]
+            cj = coef[r, j]
+            C += cj * (x[a, 0] * n0 + x[a, 1] * n1 + x[a, 2] * n2)
+            for q in range(3):
+                u[q] += cj * (x[a, q] - x0[a, q])
+        blk[:, :] = 0.0
+        have = False
+        gC = 0.0
+        if C < 0.0:
+            E += 0.5 * k * C * C
+            gC = k * C
+            if mode >= 2:
+                for p in range(3):
+                    for q in range(3):
+                        blk[p, q] = k * nrm[r, p] * nrm[r, q]
+            have = True
+        L = lam[r]
+        m = mu[r]
+        g[:] = 0.0
+        if L > 0.0 and m > 0.0:
+            ml = m * L
+            un = u[0] * n0 + u[1] * n1 + u[2] * n2
+            u[0] -= un * n0
+            u[1] -= un * n1
+            u[2] -= un * n2
+            y = np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
+            if y < eps:
+                E += ml * (-y * y * y / (3.0 * eps * eps) + y * y / eps + eps / 3.0)
+                f1y = 2.0 / eps - y / (eps * eps)
+            else:
+                E += ml * y
+                f1y = 1.0 / y
+            for q in range(3):
+                g[q] = ml * f1y * u[q]
+            if mode >= 2:
+                if irls:
+                    cu = 0.0
+                elif y < eps:
+                    cu = ml / (eps * eps * y) if y > 0.0 else 0.0
+                else:
+                    cu = ml / (y * y * y)
+                for p in range(3):
+                    for q in range(3):
+                        pp = (1.0 if p == q else 0.0) - nrm[r, p] * nrm[r, q]
+                        blk[p, q] += ml * f1y * pp - cu * u[p] * u[q]
+            have = True
+        if not have:
+            continue
+        for j in range(4):
+            a = rows[r, j]
+            cj = coef[r, j]
+            if fixed[a] or cj == 0.0:
+                continue
+            if mode >= 1:
+                grad[a, 0] += cj * (gC * n0 + g[0])
+                grad[a, 1] += cj * (gC * n1 + g[1])
+                grad[a, 2] += cj * (gC * n2 + g[2])
+            if mode >= 2:
+                b = diag[a]
+                for p in range(3):
+                    for q in range(3):
+                        A[b, p, q] += cj * cj * blk[p, q]
+    return E

@@ -1,0 +1,523 @@
+"""The implicit solver (Loki supplement eq. 1): backward Euler as an optimisation, Newton's
+method with a backtracking line search, block-sparse Hessians and preconditioned CG.
+
+Per substep of size h, with x^n, v^n the state, f the forces the force stage accumulated
+(gravity, wind, pressure, rest springs ...), M the lumped masses and Psi the sum of the
+energies of every bound constraint behavior that implements the implicit energy protocol
+(:mod:`.energy`), the new positions minimise the incremental potential
+
+    E(x) = 1/(2 h^2) |x - x~|^2_M + Psi(x) + 1/(2 h) |x - x^n - h u|^2_D,
+    x~   = x^n + h v^n + h^2 M^-1 f,
+
+which is the velocity form v = argmin 1/2 |v - v^n|^2_M - h f.v + Psi(x^n + h v) (+ the
+implicit drag h/2 |v - u|^2_D, with D and u the per-vertex drag tensor and air velocity of
+``drag_D`` / ``drag_u``, Avatar eq. 1-4) written in x = x^n + h v. Its stationarity is
+backward Euler: M (v - v^n) = h (f - grad Psi(x) + D (u - v)). ``Dynamic.damping`` damps v^n
+first, as in the Nucleus solver.
+
+Newton: the gradient and the Hessian of E are assembled into a block-sparse matrix (3x3 blocks)
+whose pattern is fixed once from the energy stencils (values refilled per iteration by numba
+scatter kernels, no pattern building per iteration); every energy writes PSD blocks, so the
+Newton matrix M/h^2 + D/h + sum of PSD blocks is positive definite and CG applies. Hard rows
+(inextensible stretch, welds) are augmented Lagrangian terms: a penalty ``hard_stiffness`` times
+the inertia m/h^2 of their vertices plus a multiplier that carries the constraint force over
+from one substep to the next (updated after every substep; each behavior checkpoints its own
+through ``state_arrays``), so that a moderate,
+well-conditioned penalty converges to the hard constraint at rest. The step
+solves H dx = -grad E by PCG (block-Jacobi preconditioner by default) to ``cg_tolerance``; a
+backtracking line search (Armijo, halving) on E takes the step; iterations stop when the step
+changes no velocity by more than ``newton_tolerance`` [m/s] or after ``newton_iterations``.
+
+Dirichlet vertices: kinematic vertices sit at their animated pose, pinned vertices (inverse
+mass 0) at x^n + h v^n (as in Nucleus); both are removed from the unknowns (their rows and
+columns of the Newton matrix become the identity, their gradient entries zero).
+
+Contacts in the Newton solve (``implicit/contact.py``): with ``shape_contact: energy`` (the
+default) the analytic colliders of ``ShapeCollisionConstraint`` (plane, sphere, capsule) are a
+one-sided penalty ``contact_stiffness * m / h^2`` on the signed distance minus thickness plus
+IPC-style smoothed Coulomb friction with the normal force and normal lagged from the previous
+Newton iterate (the first iteration of a substep takes the last substep's); a final safety
+projection pushes any vertex still inside out along the normal. With ``mesh_contact: energy``
+(the default) the vertex-face and edge-edge rows ``CollisionDetect`` built for the substep
+enter the solve the same way (penalty on n0 . sum c_a x_a - target, closest-point
+coefficients and normal forces lagged, block-diagonal Hessian), and ``CollisionConstraint``'s
+projection pass below stays as their safety projection (re-detection and CCD included). Newton
+does not stop while a lagged normal force changes by more than ``contact_tolerance`` of the
+largest, up to ``contact_newton_iterations``. This is a penalty method, not the
+complementarity solve of the Loki supplement eq. 5-7: contacts leave a small penetration (at
+rest ~ g h^2 / contact_stiffness) that the safety projection removes.
+
+Constraints that are not energies: mesh collisions (``CollisionConstraint``, also after their
+rows were in the solve), analytic colliders with ``shape_contact: projection``, strain limits
+(``StrainLimitConstraint``), enclosed-volume pressure (``PressureConstraint``) and sliding
+attachments are inequality or global constraints. They are applied, as the Nucleus solver's
+final rounds do, by a projection pass on the end-of-step positions after the Newton solve
+(``projection_iterations`` Gauss-Seidel passes of their ``project``, then ``finalize`` and
+``after_finalize``: the collision final rounds re-detect over the solved motion), and v is then
+(x' - x^n) / h. Strain limits here cannot push back on the elastic solve of the same step.
+Tethers (``TetherConstraint``, a Gauss-Seidel convergence aid for inextensible
+materials) are not used: the Newton solve carries the stretch stiffness across the mesh. Any
+other constraint type bound in an implicit scene that has no energy is an error at
+the first substep, naming it (never a silent skip).
+
+Statistics per substep in ``ctx.stats`` (summed over the frame in run.json, ``max_`` keys take
+the maximum): ``newton_iterations``, ``cg_iterations``, ``line_search_halvings``,
+``max_newton_iterations``, ``max_cg_iterations`` (one linear solve), ``max_newton_step``
+(the last step's largest velocity change [m/s]), ``max_cg_residual`` (relative);
+with contacts in the solve ``active_contacts`` / ``max_active_contacts`` (vertex-shape pairs in
+contact at the last Newton iterate), ``max_projection_move`` (largest move of a vertex by the projection pass [m]),
+``max_contact_projection`` (largest move of the shape
+safety projection [m]), ``contact_rows`` / ``max_contact_rows`` (active pipeline rows).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.sparse as sp
+from pydantic import Field
+
+from lokigraph.behavior import Behavior, Params
+from lokigraph.components.core import Dynamic
+from lokigraph.errors import InputError
+from lokigraph.keys import Keyed, step_frame
+
+from .contact import contact_energy, lag_contacts, lag_rows, row_energy, safety_project
+from .energy import EnergyOptions, build_pattern, scatter_blocks
+from .linear import BlockJacobi, SmoothedAggregation
+
+#: constraint types applied by the projection pass after the Newton solve (see module docstring)
+PROJECTED_TYPES = ("CollisionConstraint", "ShapeCollisionConstraint", "StrainLimitConstraint",
+                   "PressureConstraint")
+#: constraint types the implicit solver does not need, with the reason (module docstring)
+NOT_NEEDED = {"TetherConstraint": "tethers are a Gauss-Seidel convergence aid; the Newton solve "
+                                  "carries the (hard-penalty) stretch stiffness globally"}
+
+
+class ImplicitParams(Params):
+    newton_iterations: int = Field(8, ge=1, le=1000, description="Most Newton iterations per "
+                                   "substep.")
+    newton_tolerance: float = Field(1e-3, gt=0, description="Newton stops when a step changes "
+                                    "no vertex velocity by more than this [m/s] (default from "
+                                    "graphs/bench/drape_ref.yaml at 4 substeps: 1e-3 gives the "
+                                    "error of 1e-5 (0.0870 m) with half the Newton iterations; "
+                                    "1e-2 0.0871 m).")
+    cg_iterations: int = Field(500, ge=1, le=100000, description="Most CG iterations per Newton "
+                               "iteration.")
+    cg_tolerance: float = Field(1e-3, gt=0, lt=1, description="CG stops at this residual "
+                                "relative to the Newton gradient [-] (default from "
+                                "graphs/bench/drape_ref.yaml: 1e-2 .. 1e-5 give the same error, "
+                                "1e-3 keeps a margin at 70 % of the CG iterations of 1e-4).")
+    preconditioner: Literal["block_jacobi", "amg"] = Field(
+        "block_jacobi", description="CG preconditioner: inverse 3x3 diagonal blocks, or pyamg "
+        "smoothed aggregation (one V-cycle, rebuilt per Newton iteration).")
+    hard_stiffness: float = Field(1e4, gt=0, description="Penalty of hard rows (inextensible "
+                                  "stretch, welds, hard attachments) as a multiple of the "
+                                  "inertia m / h^2 of their heaviest vertex [-]; stretch rows "
+                                  "add a multiplier carried between substeps (augmented "
+                                  "Lagrangian). Measured at 24 fps, 1 substep: the catenary "
+                                  "bench at rest is within 4e-7 m at 1e4 (Newton stalls at 1e5: "
+                                  "2.6 cm); graphs/bench/drape_64.yaml (64x64, inextensible) "
+                                  "stretches by up to 11 % at 1e4 and 6 % at 3e4 while it falls "
+                                  "(the multipliers lag a sudden load).")
+    line_search: bool = Field(True, description="Backtracking line search on the incremental "
+                              "potential (false: full Newton steps).")
+    projection_iterations: int = Field(10, ge=0, le=10000, description="Gauss-Seidel passes of "
+                                       "the projected constraint types (collisions, strain "
+                                       "limits, pressure) after the Newton solve.")
+    shape_contact: Literal["energy", "projection"] = Field(
+        "energy", description="Analytic colliders (ShapeCollider): 'energy' puts a one-sided "
+        "penalty and lagged smoothed Coulomb friction into the Newton solve (implicit/contact.py) "
+        "plus a final safety projection; 'projection' applies ShapeCollisionConstraint in the "
+        "projection pass after the Newton solve.")
+    mesh_contact: Literal["energy", "projection"] = Field(
+        "energy", description="Contacts of the collision pipeline (CollisionDetect's vertex-face "
+        "and edge-edge rows): 'energy' also puts them into the Newton solve as penalty rows with "
+        "lagged smoothed friction (implicit/contact.py) before CollisionConstraint's projection "
+        "pass (which stays as the safety projection, CCD included); 'projection': that pass "
+        "only.")
+    contact_newton_iterations: int = Field(
+        20, ge=1, le=1000, description="Most Newton iterations of a substep with contacts in the "
+        "solve (analytic colliders or contact rows; newton_iterations otherwise). Measured on "
+        "a 16x16 inextensible cloth dropped on a sphere mesh at 1 substep: max edge strain 11 % "
+        "at 8, 1.7 % at 20.")
+    contact_stiffness: float = Field(1e4, gt=0, description="Contact penalty per vertex as a "
+                                     "multiple of its inertia m / h^2 [-] (shape_contact: "
+                                     "energy).")
+    friction_velocity: float = Field(1e-5, gt=0, description="Tangential speed below which "
+                                     "friction is a smoothed stick (IPC's eps_v) [m/s]; a "
+                                     "sticking vertex creeps at about friction_velocity * "
+                                     "tan(slope) / (2 mu).")
+    friction_hessian: Literal["irls", "exact"] = Field(
+        "exact", description="Friction Hessian block: 'irls' mu lam f1(y)/y (I - n n^T), a "
+        "quadratic majorizer (every full step lowers the friction energy); 'exact' IPC's PSD "
+        "Hessian (zero curvature along a sliding direction).")
+    contact_tolerance: float = Field(1e-4, gt=0, lt=1, description="Newton does not stop while "
+                                     "the lagged normal forces of the contacts change by more "
+                                     "than this fraction of the largest one [-].")
+
+
+@dataclass
+class _ImplicitData:
+    damp_rate: np.ndarray
+    keyed_damping: list
+    fixed: np.ndarray  # bool per vertex: Dirichlet
+    ready: bool = False
+    energies: list = field(default_factory=list)  # (behavior, data, maps, hloc list)
+    projected: list = field(default_factory=list)
+    A: object = None
+    diag: np.ndarray | None = None
+    fixed_blocks: np.ndarray | None = None
+    fixed_diag: np.ndarray | None = None
+    brow: np.ndarray | None = None  # block row of every stored block
+    cur_fixed: np.ndarray | None = None  # Dirichlet set of the current Newton solve
+    precond: object = None
+    work: dict = field(default_factory=dict)
+    shapes: tuple | None = None  # (kinds, centers, dirs, radii, lengths, mus) of contact energy
+    contact: dict = field(default_factory=dict)  # kc, lam, nrm, lam_prev, dummies
+    mesh: bool = False  # contact rows of CollisionDetect in the Newton solve
+    rows: dict = field(default_factory=dict)  # grow-only buffers and this substep's views
+
+
+class ImplicitSolver(Behavior):
+    """Backward Euler by Newton + PCG on the incremental potential (see module docstring)."""
+
+    stage = "solve"
+    solver = "implicit"
+    requires = (Dynamic,)
+    reads_optional = ("particle_f", "constraints", "kinematic_q", "drag")
+    writes = ("particle_q", "particle_qd")
+    ParamsModel = ImplicitParams
+
+    def bind(self, ctx, elements):
+        m = ctx.model
+        damp = np.zeros(m.particle_count)
+        keyed = []
+        for e in elements:
+            d = e.get(Dynamic).damping
+            if isinstance(d, Keyed):
+                keyed.append((e.vertex_slice, d))
+            else:
+                damp[e.vertex_slice] = d
+        fixed = m.particle_kinematic | (m.particle_inv_mass <= 0)
+        return _ImplicitData(damp, keyed, fixed)
+
+    # -- first substep: sort the constraint types, build the Hessian pattern -----------------
+    def _prepare(self, ctx, d):
+        n = ctx.model.particle_count
+        energies, projected, stencils = [], [], []
+        shapes = []
+        for b, bd in ctx.constraints:
+            name = type(b).__name__
+            if name == "ShapeCollisionConstraint" and self.params.shape_contact == "energy":
+                if bd is not None and len(bd.kinds):
+                    shapes.append(bd)
+                continue
+            if hasattr(b, "energy") and hasattr(b, "energy_stencils"):
+                st = [np.ascontiguousarray(s, dtype=np.int64) for s in b.energy_stencils(ctx, bd)]
+                energies.append([b, bd, st])
+                stencils.extend(st)
+                if hasattr(b, "implicit_project"):
+                    projected.append((b, bd))
+            elif name in PROJECTED_TYPES:
+                projected.append((b, bd))
+            elif name in NOT_NEEDED:
+                continue
+            else:
+                raise InputError(f"the implicit solver cannot run constraint {b.name!r} "
+                                 f"({name}): it has no implicit energy and no projection; "
+                                 f"remove it from the scene or use solver: nucleus")
+        indptr, indices, diag, maps = build_pattern(n, stencils)
+        nb = len(indices)
+        data = np.zeros((nb, 3, 3))
+        d.A = sp.bsr_matrix((data, indices, indptr), shape=(3 * n, 3 * n), blocksize=(3, 3))
+        if not np.shares_memory(d.A.data, data):  # pragma: no cover - scipy keeps it today
+            raise RuntimeError("scipy copied the BSR data array")
+        k = 0
+        for e in energies:
+            ns = len(e[2])
+            e.append(maps[k:k + ns])
+            e.append([np.zeros((s.shape[0], s.shape[1], s.shape[1], 3, 3)) for s in e[2]])
+            k += ns
+        d.energies = energies
+        d.projected = projected
+        d.diag = diag
+        d.brow = np.repeat(np.arange(n), np.diff(indptr))
+        d.precond = (SmoothedAggregation(n) if self.params.preconditioner == "amg"
+                     else BlockJacobi(n))
+        d.work = {k: np.zeros((n, 3)) for k in ("r", "z", "p", "g", "dx", "xt", "xs", "x0",
+                                               "du", "Ap", "pp")}
+        d.mesh = (self.params.mesh_contact == "energy"
+                  and any(type(b).__name__ == "CollisionConstraint" for b, _ in projected))
+        if shapes:
+            d.shapes = tuple(np.ascontiguousarray(np.concatenate([getattr(b, f) for b in shapes]))
+                             for f in ("kinds", "centers", "dirs", "radii", "lengths", "mus"))
+            ns = len(d.shapes[0])
+            d.contact = {"kc": np.zeros(n), "lam": np.zeros((n, ns)),
+                         "lam_prev": np.zeros((n, ns)), "nrm": np.zeros((n, ns, 3)),
+                         "g1": np.zeros((1, 3)), "A1": np.zeros((1, 3, 3)), "active": 0}
+        d.ready = True
+
+    # -- energy, gradient and Hessian of the incremental potential ---------------------------
+    def _potential(self, ctx, d, x, mode, opts, xt, grad):
+        """E(x); with mode >= 1 the gradient into ``grad``; with mode 2 the Newton matrix."""
+        m = ctx.model
+        h = ctx.dt
+        mass = m.particle_mass
+        free = ~d.cur_fixed
+        dxt = x - xt
+        E = 0.5 / (h * h) * float(np.einsum("i,ij,ij->", mass * free, dxt, dxt))
+        if mode >= 1:
+            np.multiply(dxt, (mass * free / (h * h))[:, None], out=grad)
+        D = ctx.state.fields.get("drag_D")
+        if D is not None:
+            du = x - d.work["x0"] - h * ctx.state.fields["drag_u"]
+            Ddu = np.einsum("nij,nj->ni", D, du)
+            Ddu[d.cur_fixed] = 0.0
+            E += 0.5 / h * float(np.vdot(du, Ddu))
+            if mode >= 1:
+                grad += Ddu / h
+        opts.mode = mode
+        if mode >= 2:
+            A = d.A.data
+            A[:] = 0.0
+            for b, bd, st, maps, hloc in d.energies:
+                for hl in hloc:
+                    hl[:] = 0.0
+                E += b.energy(ctx, bd, x, grad, hloc, opts)
+                for mp, hl in zip(maps, hloc):
+                    scatter_blocks(A, mp, hl)
+            diag = A[d.diag]
+            eye = np.eye(3)
+            diag += (mass / (h * h))[:, None, None] * eye
+            if D is not None:
+                diag += D / h
+            A[d.diag] = diag
+            A[d.fixed_blocks] = 0.0
+            A[d.fixed_diag] = eye
+        else:
+            for b, bd, st, maps, hloc in d.energies:
+                E += b.energy(ctx, bd, x, grad if mode >= 1 else None, None, opts)
+        if d.rows.get("sets"):
+            g1 = grad if mode >= 1 else d.rows["g1"]
+            A1 = d.A.data if mode >= 2 else d.rows["A1"]
+            irls = self.params.friction_hessian == "irls"
+            eps = self.params.friction_velocity * h
+            for rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf in d.rows["sets"]:
+                E += row_energy(x, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef, kr, lam, mu,
+                                eps, mode, g1, A1, d.diag, irls)
+        if d.shapes is not None:
+            C = d.contact
+            E += contact_energy(x, d.work["x0"], d.cur_fixed, *d.shapes, C["kc"], C["lam"],
+                                C["nrm"], self.params.friction_velocity * h, mode,
+                                grad if mode >= 1 else C["g1"], d.A.data if mode >= 2 else C["A1"],
+                                d.diag, self.params.friction_hessian == "irls")  # skips Dirichlet vertices (their blocks stay I)
+        if mode >= 1:
+            grad[d.cur_fixed] = 0.0
+        return E
+
+    def step(self, ctx, data):
+        d = data
+        if not d.ready:
+            self._prepare(ctx, d)
+        m, st, ctl = ctx.model, ctx.state, ctx.control
+        h = ctx.dt
+        P = self.params
+        x, v = st.particle_q, st.particle_qd
+        if d.keyed_damping:
+            f = step_frame(ctx)
+            for sl, key in d.keyed_damping:
+                d.damp_rate[sl] = key.evaluate(f)
+        if d.damp_rate.any():
+            v *= np.exp(-d.damp_rate * h)[:, None]
+        for b, bd in ctx.constraints:
+            b.begin_substep(ctx, bd)
+        w = d.work
+        x0 = w["x0"]
+        x0[:] = x
+        # x~ = x + h v + h^2 f / m (free vertices); Dirichlet vertices at their target
+        xt = w["xt"]
+        np.multiply(st.particle_f, (h * h * m.particle_inv_mass)[:, None], out=xt)
+        xt += h * v
+        xt += x
+        kin = m.particle_kinematic
+        if kin.any():
+            xt[kin] = ctl.kinematic_q[kin]
+        xs = w["xs"]
+        xs[:] = xt  # initial guess: the inertial prediction (exact for free particles)
+        opts = EnergyOptions(2, P.hard_stiffness * m.particle_mass / (h * h), h,
+                             np.zeros((1, 3)), np.zeros((1, 1, 1, 3, 3)))
+        counts = {"newton": 0, "cg": 0, "halvings": 0, "cg_max": 0, "cg_res": 0.0,
+                  "step_v": 0.0}
+        self._set_fixed(d, d.fixed)
+        if d.shapes is not None:
+            np.multiply(m.particle_mass, P.contact_stiffness / (h * h), out=d.contact["kc"])
+        self._bind_rows(ctx, d)
+        if (d.energies or st.fields.get("drag_D") is not None or d.shapes is not None
+                or d.rows.get("sets")):
+            self._newton(ctx, d, xs, xt, opts, counts)
+        p = xs
+        if d.projected:
+            pp = w["pp"]
+            pp[:] = p
+            self._project(ctx, d, p)
+            pp -= p
+            moved = float(np.sqrt(np.einsum("ij,ij->i", pp, pp).max())) if len(pp) else 0.0
+            ctx.stats["max_projection_move"] = max(ctx.stats.get("max_projection_move", 0.0),
+                                                   moved)
+        if d.shapes is not None:  # safety projection: no vertex ends inside a shape
+            moved = safety_project(p, d.cur_fixed, *d.shapes[:5])
+            s = ctx.stats
+            s["active_contacts"] = s.get("active_contacts", 0) + d.contact["active"]
+            s["max_active_contacts"] = max(s.get("max_active_contacts", 0), d.contact["active"])
+            s["max_contact_projection"] = max(s.get("max_contact_projection", 0.0), moved)
+        if d.rows.get("sets"):
+            s = ctx.stats
+            s["contact_rows"] = s.get("contact_rows", 0) + d.rows["active"]
+            s["max_contact_rows"] = max(s.get("max_contact_rows", 0), d.rows["active"])
+        for b, bd, *_ in d.energies:  # augmented Lagrangian multipliers of hard rows
+            if hasattr(b, "energy_update_multipliers"):
+                b.energy_update_multipliers(ctx, bd, p, opts)
+        np.subtract(p, x, out=v)
+        v *= 1.0 / h
+        x[:] = p
+        s = ctx.stats
+        c = counts
+        s["newton_iterations"] = s.get("newton_iterations", 0) + c["newton"]
+        s["cg_iterations"] = s.get("cg_iterations", 0) + c["cg"]
+        s["line_search_halvings"] = s.get("line_search_halvings", 0) + c["halvings"]
+        s["max_newton_iterations"] = max(s.get("max_newton_iterations", 0), c["newton"])
+        s["max_cg_iterations"] = max(s.get("max_cg_iterations", 0), c["cg_max"])
+        s["max_newton_step"] = max(s.get("max_newton_step", 0.0), c["step_v"])
+        s["max_cg_residual"] = max(s.get("max_cg_residual", 0.0), c["cg_res"])
+
+    def _bind_rows(self, ctx, d):
+        """This substep's contact rows (CollisionDetect's packed sets) as views of grow-only
+        buffers: coefficients, stiffness, lagged normal forces."""
+        d.rows["sets"] = []
+        if not d.mesh:
+            return
+        c = ctx.state.fields.get("contacts")
+        if c is None:
+            return
+        if "g1" not in d.rows:
+            d.rows.update(g1=np.zeros((1, 3)), A1=np.zeros((1, 3, 3)), active=0,
+                          buf={"vf": None, "ee": None})
+        for kind, rows, nrm, tgt, mu in (("vf", c.vf, c.vf_n, c.vf_target, c.vf_mu),
+                                         ("ee", c.ee, c.ee_n, c.ee_target, c.ee_mu)):
+            m = len(rows)
+            if m == 0:
+                continue
+            buf = d.rows["buf"][kind]
+            if buf is None or buf[0].shape[0] < m:
+                cap = max(64, 2 * m)
+                buf = (np.zeros((cap, 4)), np.zeros(cap), np.zeros(cap), np.zeros(cap))
+                d.rows["buf"][kind] = buf
+            d.rows["sets"].append((rows, nrm, tgt, mu, buf[0][:m], buf[1][:m], buf[2][:m],
+                                   buf[3][:m], kind == "vf"))
+
+    def _lag_rows(self, ctx, d, x):
+        """Lag coefficients and normal forces of the contact rows at x; returns
+        (active rows, largest |change| of a normal force, largest normal force)."""
+        h = ctx.dt
+        m = ctx.model
+        act, dl, top = 0, 0.0, 0.0
+        for rows, nrm, tgt, mu, coef, kr, lam, lam_prev, is_vf in d.rows["sets"]:
+            lam_prev[:] = lam
+            act += lag_rows(x, d.cur_fixed, m.particle_mass,
+                            self.params.contact_stiffness / (h * h), rows, nrm, tgt, is_vf,
+                            coef, kr, lam)
+            if len(lam):
+                dl = max(dl, float(np.abs(lam - lam_prev).max()))
+                top = max(top, float(lam.max()))
+        d.rows["active"] = act
+        return act, dl, top
+
+    def _set_fixed(self, d, fixed):
+        """The Dirichlet set of the next Newton solve (blocks to clear, diagonals to set)."""
+        d.cur_fixed = fixed
+        d.fixed_blocks = np.flatnonzero(fixed[d.brow] | fixed[d.A.indices])
+        d.fixed_diag = d.diag[fixed]
+
+    def _newton(self, ctx, d, xs, xt, opts, c):
+        """Newton with a backtracking line search on E from ``xs`` (in place); Dirichlet
+        vertices (``d.cur_fixed``) stay where ``xs`` has them."""
+        P = self.params
+        h = ctx.dt
+        w = d.work
+        g, dx = w["g"], w["dx"]
+        fixed = d.cur_fixed
+        C = d.contact
+        if d.shapes is not None:  # first iteration: the normal forces of the last substep
+            C["active"] = int(np.count_nonzero(C["lam"]))
+        if d.rows.get("sets"):  # rows are new every substep: lag from the start positions
+            for st in d.rows["sets"]:
+                st[6][:] = 0.0
+            self._lag_rows(ctx, d, w["x0"])
+        n_it = (P.contact_newton_iterations if d.shapes is not None or d.rows.get("sets")
+                else P.newton_iterations)
+        for it_n in range(1, n_it + 1):
+            c["newton"] += 1
+            E0 = self._potential(ctx, d, xs, 2, opts, xt, g)
+            d.precond.setup(d.A, d.diag)
+            neg = w["du"]
+            np.negative(g, out=neg)
+            it, res = d.precond.solve(d.A, neg, P.cg_tolerance, P.cg_iterations, dx, w)
+            c["cg"] += it
+            c["cg_max"] = max(c["cg_max"], it)
+            c["cg_res"] = max(c["cg_res"], res)
+            dx[fixed] = 0.0
+            slope = float(np.vdot(g, dx))
+            alpha = 1.0
+            if P.line_search and slope < 0.0:
+                xtry = xs + dx
+                slack = 1e-12 * abs(E0)  # rounding of E near convergence
+                for _ in range(30):
+                    E1 = self._potential(ctx, d, xtry, 0, opts, xt, None)
+                    if np.isfinite(E1) and E1 <= E0 + 1e-4 * alpha * slope + slack:
+                        break
+                    alpha *= 0.5
+                    c["halvings"] += 1
+                    np.multiply(dx, alpha, out=xtry)
+                    xtry += xs
+                xs[:] = xtry
+            else:
+                xs += dx
+            c["step_v"] = alpha * float(np.abs(dx).max()) / h if dx.size else 0.0
+            lagged_ok = True
+            if d.shapes is not None:  # friction lagged from this iterate's normal forces
+                C["lam_prev"][:] = C["lam"]
+                C["active"] = lag_contacts(xs, fixed, *d.shapes[:5], C["kc"], C["lam"],
+                                           C["nrm"])
+                top = float(C["lam"].max()) if C["active"] else 0.0
+                if top > 0.0:
+                    lagged_ok = (float(np.abs(C["lam"] - C["lam_prev"]).max())
+                                 <= P.contact_tolerance * top)
+            if d.rows.get("sets"):
+                act, dl, top = self._lag_rows(ctx, d, xs)
+                if top > 0.0 and dl > P.contact_tolerance * top:
+                    lagged_ok = False
+            if c["step_v"] < P.newton_tolerance and lagged_ok:
+                break
+
+    def _project(self, ctx, d, p):
+        """The projection pass of the non-energy constraint types (module docstring)."""
+        for _ in range(self.params.projection_iterations):
+            for b, bd in d.projected:
+                if hasattr(b, "implicit_project"):
+                    b.implicit_project(ctx, bd, p)
+                else:
+                    b.project(ctx, bd, p)
+        for b, bd in d.projected:
+            if not hasattr(b, "implicit_project"):
+                b.finalize(ctx, bd, p)
+        for b, bd in d.projected:
+            if hasattr(b, "after_finalize"):
+                b.after_finalize(ctx, bd, p)
+
+    def describe(self, data):
+        return (f"Newton <= {self.params.newton_iterations} (tol {self.params.newton_tolerance:g}"
+                f" m/s), PCG {self.params.preconditioner} (tol {self.params.cg_tolerance:g}), "
+                f"{int((~data.fixed).sum())} free / {int(data.fixed.sum())} fixed vertices")
