@@ -82,8 +82,8 @@ from pydantic import Field
 from lokigraph.behavior import Behavior, Params
 from lokigraph.components.core import Dynamic
 from lokigraph.errors import InputError
-from lokigraph.keys import Keyed, step_frame
 
+from ..damping import apply_damping, bind_damping
 from .contact import contact_energy, lag_contacts, lag_rows, row_energy, safety_project
 from .energy import EnergyOptions, build_pattern, scatter_blocks
 from .linear import BlockJacobi, SmoothedAggregation
@@ -193,14 +193,7 @@ class ImplicitSolver(Behavior):
 
     def bind(self, ctx, elements):
         m = ctx.model
-        damp = np.zeros(m.particle_count)
-        keyed = []
-        for e in elements:
-            d = e.get(Dynamic).damping
-            if isinstance(d, Keyed):
-                keyed.append((e.vertex_slice, d))
-            else:
-                damp[e.vertex_slice] = d
+        damp, keyed = bind_damping(m, elements)
         fixed = m.particle_kinematic | (m.particle_inv_mass <= 0)
         return _ImplicitData(damp, keyed, fixed)
 
@@ -326,12 +319,7 @@ class ImplicitSolver(Behavior):
         h = ctx.dt
         P = self.params
         x, v = st.particle_q, st.particle_qd
-        if d.keyed_damping:
-            f = step_frame(ctx)
-            for sl, key in d.keyed_damping:
-                d.damp_rate[sl] = key.evaluate(f)
-        if d.damp_rate.any():
-            v *= np.exp(-d.damp_rate * h)[:, None]
+        apply_damping(ctx, v, d.damp_rate, d.keyed_damping)
         for b, bd in ctx.constraints:
             b.begin_substep(ctx, bd)
         w = d.work

@@ -30,9 +30,9 @@ from pydantic import Field
 
 from lokigraph.behavior import Behavior, Params
 from lokigraph.components.core import Dynamic
-from lokigraph.keys import Keyed, step_frame
 
 from ...air.kernels import implicit_drag_update_inv_mass
+from ..damping import apply_damping, bind_damping
 
 
 #: plain iterations before the Chebyshev acceleration starts (Wang 2015 uses a short delay)
@@ -100,14 +100,7 @@ class NucleusSolver(Behavior):
 
     def bind(self, ctx, elements):
         m = ctx.model
-        damp = np.zeros(m.particle_count)
-        keyed = []
-        for e in elements:
-            d = e.get(Dynamic).damping
-            if isinstance(d, Keyed):  # lokigraph.keys: evaluated per substep
-                keyed.append((e.vertex_slice, d))
-            else:
-                damp[e.vertex_slice] = d
+        damp, keyed = bind_damping(m, elements)
         data = _NucleusData(damp, np.flatnonzero(~m.particle_kinematic),
                             np.flatnonzero(m.particle_kinematic),
                             np.zeros((m.particle_count, 3)), keyed_damping=keyed)
@@ -120,12 +113,7 @@ class NucleusSolver(Behavior):
         m, st, ctl = ctx.model, ctx.state, ctx.control
         h = ctx.dt
         x, v = st.particle_q, st.particle_qd
-        if data.keyed_damping:
-            f = step_frame(ctx)
-            for sl, key in data.keyed_damping:
-                data.damp_rate[sl] = key.evaluate(f)
-        if data.damp_rate.any():  # damp the old velocity (not the force increment, which
-            v *= np.exp(-data.damp_rate * h)[:, None]  # would bias static equilibria)
+        apply_damping(ctx, v, data.damp_rate, data.keyed_damping)
         v += (h * m.particle_inv_mass)[:, None] * st.particle_f
         D = st.fields.get("drag_D")
         if D is not None:  # implicit drag: (M + h D) v' = M v + h D u   (per vertex, 3x3)
