@@ -90,9 +90,8 @@ class FluidDomain(Component):
     write_fields: bool = Field(False, description="Simulated: write velocity [m/s] and pressure "
                                "[Pa] per frame as VTK image data to fields_dir/NNNN.vti.")
     fields_dir: str | None = Field(None, description="Folder of the .vti files, relative to "
-                                   "the scene file (default: the scene's output.dir/<element "
-                                   "name>, relative to the current directory; --out does not "
-                                   "move it).")
+                                   "the scene file (default: <run output folder>/<element "
+                                   "name>, i.e. output.dir or --out).")
 
     @model_validator(mode="after")
     def _consistent(self):

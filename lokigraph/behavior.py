@@ -14,6 +14,7 @@ interleaved loop (Nucleus section 6).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -189,3 +190,6 @@ class StepContext:
     frame: int
     constraints: list = field(default_factory=list)  # [(behavior, data)] sorted by order
     stats: dict = field(default_factory=dict)
+    #: the run's output folder when it writes frames (``lokigraph run --out``), else None; for
+    #: behaviors that write per-frame files of their own (e.g. fluid fields) in ``frame_end``
+    out_dir: "Path | None" = None

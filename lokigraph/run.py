@@ -367,6 +367,8 @@ class Simulation:
         self._kinematic = np.flatnonzero(self.model.particle_kinematic
                                          & ~self.model.particle_compliant)
         self.frame = compiled.scene.spec.frames.start
+        #: the run's output folder (set by :func:`run` when it writes frames), else None
+        self.out_dir: Path | None = None
         self.substep_index = 0
         #: ``on_substep(frame, k, substeps, time, seconds, stats)`` after each substep (``-v``)
         self.on_substep = None
@@ -445,7 +447,8 @@ class Simulation:
                         stats[k] = stats.get(k, 0.0) + v
         self.frame += 1
         ctx = StepContext(self.model, self.state, self.control, self.model.dt, self.state.time,
-                          self.substep_index, self.frame, self._constraints, {})
+                          self.substep_index, self.frame, self._constraints, {},
+                          out_dir=self.out_dir)
         for b in self._steps:
             b.behavior.frame_end(ctx, b.data)
         stats.update({k: float(v) for k, v in ctx.stats.items()})
@@ -520,6 +523,7 @@ def run(compiled: Compiled, frames: tuple[int, int] | None = None, out_dir: str 
                                   overwrite, _input_dirs(compiled))
         ckpt.clear(out)
     sim = Simulation(compiled)
+    sim.out_dir = out if write else None
     first = sim.begin(init, spec.preroll, resumed[0] if resumed else None)
     if resumed is not None:
         first = int(resumed[1]["first"])  # the run's checkpoint schedule goes on

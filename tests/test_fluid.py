@@ -236,9 +236,11 @@ def test_bad_fluid_domains_are_input_errors(scene_file, extra, message):
 
 
 def test_flag_tunnel_example_writes_fields_and_stats(tmp_path):
-    out = tmp_path / "out" / "flag_tunnel"  # the scene's output.dir, relative to cwd
-    r = run_cli("run", EXAMPLES / "flag_tunnel.yaml", "--frames", "1:6", cwd=tmp_path)
+    out = tmp_path / "elsewhere"  # --out moves the frames and the fluid fields together
+    r = run_cli("run", EXAMPLES / "flag_tunnel.yaml", "--frames", "1:6", "--out", out,
+                cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+    assert not (tmp_path / "out").exists()  # nothing left at the scene's output.dir
     run = json.loads((out / "run.json").read_text())
     st = run["per_frame"][-1]["stats"]
     assert st["fluid_pressure_iterations"] > 0 and st["max_fluid_exchange_error"] < 1e-9

@@ -49,6 +49,13 @@ _TOL = 1e-12
 #: was last near it (pushed-through cloth may be out of the contact band for a while)
 SIDE_MEMORY = 48
 _NEVER = -(1 << 40)  # detection pass stamp of "never"
+#: exact candidate culling in the projection (see ``_cull_rows``); False projects every
+#: detected row (same results, slower: kept for benchmarks and tests)
+CONTACT_CULL = True
+#: a culled row is one that cannot activate unless some vertex moves more than
+#: CULL_REACH x (largest box inflation of any group) away from the detected end positions
+CULL_REACH = 2.0
+_CULL_TOL = 1e-9  # [m] slack over rounding in the cull bound
 
 
 @dataclass
@@ -115,6 +122,16 @@ class _Contacts:
     det_ref: np.ndarray = None
     p_det: np.ndarray = None  # copy of p at a final round's detection (allocated on first use)
     infl_min: float = -1.0  # smallest box inflation of any vertex of any group [m]
+    # exact culling (``_cull_rows``): end positions of the last detection, the rows that can
+    # activate while no vertex moves more than cull_b [m] from them (-1: no culling)
+    cull_ref: np.ndarray = None
+    cull_b: float = -1.0
+    vf_sel: np.ndarray = field(default_factory=lambda: np.zeros(256, np.int64))
+    ee_sel: np.ndarray = field(default_factory=lambda: np.zeros(256, np.int64))
+    n_vf_sel: int = 0
+    n_ee_sel: int = 0
+    cull_passes: int = 0  # projection passes over the culled rows / over every row (counts)
+    full_passes: int = 0
 
 
 def _members(ctx, e, g):
@@ -359,12 +376,99 @@ def _detect_all(d, x, x1, v, h) -> int:
         ee_all.append(ee)
         tolerant += t
     _pack(d, vf_all, ee_all)
+    _cull(d, x1)
     return tolerant
+
+
+def _cull(d, x1):
+    """Index the packed rows that can activate while no vertex moves more than ``cull_b`` from
+    the detected end positions ``x1`` (copied): ``_project_contacts`` then visits only those,
+    in their order, as long as that holds, and every row otherwise."""
+    d.cull_b = -1.0
+    if not CONTACT_CULL:
+        return
+    if d.cull_ref is None or d.cull_ref.shape != x1.shape:
+        d.cull_ref = np.empty_like(x1)
+    d.cull_ref[:] = x1
+    b = 0.0
+    for g in d.groups:
+        if len(g.verts):
+            b = max(b, float(np.maximum(g.th_out, g.th_in)[g.verts].max()) + 0.5 * g.margin)
+    b *= CULL_REACH
+    lim = 2.0 * b + _CULL_TOL
+    for kind in ("vf", "ee"):
+        rows = getattr(d, kind)
+        sel = getattr(d, kind + "_sel")
+        if len(rows) > len(sel):
+            sel = np.zeros(max(2 * len(sel), len(rows)), np.int64)
+            setattr(d, kind + "_sel", sel)
+        k = _cull_rows(rows, getattr(d, kind + "_n"), getattr(d, kind + "_target"),
+                       d.cull_ref, kind == "vf", lim, sel)
+        setattr(d, "n_" + kind + "_sel", k)
+    d.cull_b = b
+
+
+@njit(cache=True)
+def _cull_rows(rows, nrm, target, ref, is_vf, lim, sel):
+    """Rows that may activate; writes their numbers, in order, to ``sel``; returns the count.
+
+    A contact's gap in the projection, ``g = d . n`` (``d`` the closest-point difference at
+    the iterate, ``n`` the start normal ``n0`` or, when ``d . n0 > 0``, ``d / |d|``), is at
+    least ``d . n0``. As ``d`` is a convex combination of the pair's vertex differences,
+    ``d . n0 >= L - 2 u`` where ``L`` = min over the first primitive's vertices of ``y . n0``
+    minus max over the second's at the reference positions ``y`` and ``u`` the largest motion
+    of any vertex away from ``y``. A row with ``L - target >= lim = 2 b + tol`` therefore stays
+    inactive while ``u <= b``: it is left out of ``sel``."""
+    k = 0
+    for r in range(rows.shape[0]):
+        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+        if is_vf:
+            v = rows[r, 0]
+            lo = ref[v, 0] * n0 + ref[v, 1] * n1 + ref[v, 2] * n2
+            hi = -np.inf
+            for j in range(1, 4):
+                q = rows[r, j]
+                hi = max(hi, ref[q, 0] * n0 + ref[q, 1] * n1 + ref[q, 2] * n2)
+        else:
+            a0, a1, b0, b1 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+            lo = min(ref[a0, 0] * n0 + ref[a0, 1] * n1 + ref[a0, 2] * n2,
+                     ref[a1, 0] * n0 + ref[a1, 1] * n1 + ref[a1, 2] * n2)
+            hi = max(ref[b0, 0] * n0 + ref[b0, 1] * n1 + ref[b0, 2] * n2,
+                     ref[b1, 0] * n0 + ref[b1, 1] * n1 + ref[b1, 2] * n2)
+        if not (lo - hi - target[r] >= lim):  # NaN keeps the row
+            sel[k] = r
+            k += 1
+    return k
 
 
 def _project_contacts(c, p, x, w) -> int:
     """One Gauss-Seidel pass over all packed contacts; returns the number of active ones."""
     a = 0
+    b = c.cull_b
+    if b >= 0.0 and c.cull_ref is not None and _max_move(c.cull_ref, p) <= b:
+        # only the rows that can activate, in their order (exact: the others would be
+        # skipped as inactive) until a contact moves a vertex past b; then every row from there
+        c.cull_passes += 1
+        ref, b2 = c.cull_ref, b * b
+        rv = re = 0
+        if len(c.vf):
+            av, rv = _project_vf_sel(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
+                                     c.damping, c.vf_onesided, c.vf_sel, c.n_vf_sel, 0, ref, b2)
+            a += av
+            if rv >= 0:
+                a += _project_vf_sel(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
+                                     c.damping, c.vf_onesided, c.vf_sel, -1, rv, ref, b2)[0]
+        if len(c.ee):
+            if rv < 0:
+                ae, re = _project_ee_sel(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu,
+                                         c.ee_strength, c.damping, c.ee_sel, c.n_ee_sel, 0, ref,
+                                         b2)
+                a += ae
+            if rv >= 0 or re >= 0:
+                a += _project_ee_sel(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
+                                     c.damping, c.ee_sel, -1, max(re, 0), ref, b2)[0]
+        return a
+    c.full_passes += 1
     if len(c.vf):
         a += project_vf(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength, c.damping,
                         c.vf_onesided)
@@ -622,8 +726,31 @@ def _filter_ee(cand, edges, edge_elem, allow, tolerant, th, fric, visible, setma
 def project_vf(p, x, w, rows, nrm, target, mu, strength, damping, onesided):
     """Gauss-Seidel over vertex-face contacts: n . (p_v - sum b_k p_k) >= target, plus
     position-based Coulomb friction on the relative tangential motion of the substep."""
+    return _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
+                           _NO_SEL, -1, 0, _NO_REF, -1.0)[0]
+
+
+_NO_SEL = np.zeros(0, np.int64)
+_NO_REF = np.zeros((0, 3))
+
+
+@njit(cache=True)
+def _moved2(p, ref, i):
+    """Squared distance [m^2] of vertex i from its reference position."""
+    return (p[i, 0] - ref[i, 0]) ** 2 + (p[i, 1] - ref[i, 1]) ** 2 + (p[i, 2] - ref[i, 2]) ** 2
+
+
+@njit(cache=True)
+def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided, sel, nsel,
+                    start, ref, b2):
+    """``project_vf`` over the rows ``sel[:nsel]`` in that order (rows ``start:`` if nsel < 0).
+    Over a selection, a row that moves one of its vertices farther than ``sqrt(b2)`` from
+    ``ref`` ends the pass early: returns (active, the row number to resume every row from);
+    otherwise (active, -1)."""
     active = 0
-    for r in range(rows.shape[0]):
+    n_it = rows.shape[0] if nsel < 0 else nsel
+    for it in range(start if nsel < 0 else 0, n_it):
+        r = it if nsel < 0 else sel[it]
         v, a, b, c = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         d2, b0, b1, b2 = _pt_tri_sq(p[v, 0], p[v, 1], p[v, 2], p[a, 0], p[a, 1], p[a, 2],
                                      p[b, 0], p[b, 1], p[b, 2], p[c, 0], p[c, 1], p[c, 2])
@@ -676,26 +803,44 @@ def project_vf(p, x, w, rows, nrm, target, mu, strength, damping, onesided):
                     p[k, 0] += w[k] * bk * s * tx
                     p[k, 1] += w[k] * bk * s * ty
                     p[k, 2] += w[k] * bk * s * tz
-    return active
+        if nsel >= 0 and (_moved2(p, ref, v) > b2 or _moved2(p, ref, a) > b2
+                          or _moved2(p, ref, b) > b2 or _moved2(p, ref, c) > b2):
+            return active, sel[it] + 1
+    return active, -1
 
 
 @njit(cache=True)
 def project_ee(p, x, w, rows, nrm, target, mu, strength, damping):
     """Gauss-Seidel over edge-edge contacts: n . (x_a(s) - x_b(t)) >= target, with friction."""
+    return _project_ee_sel(p, x, w, rows, nrm, target, mu, strength, damping, _NO_SEL, -1, 0,
+                           _NO_REF, -1.0)[0]
+
+
+@njit(cache=True)
+def _project_ee_sel(p, x, w, rows, nrm, target, mu, strength, damping, sel, nsel, start, ref,
+                    b2):
+    """``project_ee`` over the rows ``sel[:nsel]`` in that order (rows ``start:`` if nsel < 0);
+    scalar arithmetic, no per-row allocation.
+    Over a selection, a row that moves one of its vertices farther than ``sqrt(b2)`` from
+    ``ref`` ends the pass early: returns (active, the row number to resume every row from);
+    otherwise (active, -1)."""
     active = 0
-    for r in range(rows.shape[0]):
+    n_it = rows.shape[0] if nsel < 0 else nsel
+    for it in range(start if nsel < 0 else 0, n_it):
+        r = it if nsel < 0 else sel[it]
         a0, a1, b0, b1 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         d2, s, t = _seg_seg_sq(p[a0, 0], p[a0, 1], p[a0, 2], p[a1, 0], p[a1, 1], p[a1, 2],
                                p[b0, 0], p[b0, 1], p[b0, 2], p[b1, 0], p[b1, 1], p[b1, 2])
-        n = nrm[r].copy()
+        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
         ca, cb, cc, cd = 1.0 - s, s, -(1.0 - t), -t
-        dv = np.zeros(3)
-        for k in range(3):
-            dv[k] = ca * p[a0, k] + cb * p[a1, k] + cc * p[b0, k] + cd * p[b1, k]
+        dv0 = ca * p[a0, 0] + cb * p[a1, 0] + cc * p[b0, 0] + cd * p[b1, 0]
+        dv1 = ca * p[a0, 1] + cb * p[a1, 1] + cc * p[b0, 1] + cd * p[b1, 1]
+        dv2 = ca * p[a0, 2] + cb * p[a1, 2] + cc * p[b0, 2] + cd * p[b1, 2]
         dist = np.sqrt(d2)
-        if dist > 1e-12 and dv[0] * n[0] + dv[1] * n[1] + dv[2] * n[2] > 0.0:
-            n = dv / dist  # same side as at the start: follow the current geometry
-        g = dv[0] * n[0] + dv[1] * n[1] + dv[2] * n[2]
+        if dist > 1e-12 and dv0 * n0 + dv1 * n1 + dv2 * n2 > 0.0:
+            # same side as at the start: follow the current geometry
+            n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
+        g = dv0 * n0 + dv1 * n1 + dv2 * n2
         C = g - target[r]
         if C >= 0.0:
             continue
@@ -705,24 +850,32 @@ def project_ee(p, x, w, rows, nrm, target, mu, strength, damping):
         active += 1
         dl = -C / den * strength[r]
         for vtx, cf in ((a0, ca), (a1, cb), (b0, cc), (b1, cd)):
-            for k in range(3):
-                p[vtx, k] += w[vtx] * cf * dl * n[k]
+            p[vtx, 0] += w[vtx] * cf * dl * n0
+            p[vtx, 1] += w[vtx] * cf * dl * n1
+            p[vtx, 2] += w[vtx] * cf * dl * n2
         m = mu[r]
         if m > 0.0 or damping > 0.0:
-            rel = np.zeros(3)
+            r0 = 0.0
+            r1 = 0.0
+            r2 = 0.0
             for vtx, cf in ((a0, ca), (a1, cb), (b0, cc), (b1, cd)):
-                for k in range(3):
-                    rel[k] += cf * (p[vtx, k] - x[vtx, k])
-            rn = rel[0] * n[0] + rel[1] * n[1] + rel[2] * n[2]
-            tv = rel - rn * n
-            tl = np.sqrt(tv[0] ** 2 + tv[1] ** 2 + tv[2] ** 2)
+                r0 += cf * (p[vtx, 0] - x[vtx, 0])
+                r1 += cf * (p[vtx, 1] - x[vtx, 1])
+                r2 += cf * (p[vtx, 2] - x[vtx, 2])
+            rn = r0 * n0 + r1 * n1 + r2 * n2
+            t0, t1, t2 = r0 - rn * n0, r1 - rn * n1, r2 - rn * n2
+            tl = np.sqrt(t0 ** 2 + t1 ** 2 + t2 ** 2)
             if tl > 1e-300:
                 f = min(1.0, m * (-C) / tl + damping)
                 sc = f / den
                 for vtx, cf in ((a0, ca), (a1, cb), (b0, cc), (b1, cd)):
-                    for k in range(3):
-                        p[vtx, k] -= w[vtx] * cf * sc * tv[k]
-    return active
+                    p[vtx, 0] -= w[vtx] * cf * sc * t0
+                    p[vtx, 1] -= w[vtx] * cf * sc * t1
+                    p[vtx, 2] -= w[vtx] * cf * sc * t2
+        if nsel >= 0 and (_moved2(p, ref, a0) > b2 or _moved2(p, ref, a1) > b2
+                          or _moved2(p, ref, b0) > b2 or _moved2(p, ref, b1) > b2):
+            return active, sel[it] + 1
+    return active, -1
 
 
 # ---------------------------------------------------------------------------------------------

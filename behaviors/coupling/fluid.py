@@ -258,6 +258,8 @@ class _TwoWay:
     damp: np.ndarray  # damping rate per vertex [1/s]
     keyed_damping: list
     fields_dir: Path | None
+    #: fields_dir is the default (output.dir/<element>): a run's --out moves it
+    fields_default: bool
     # scratch, allocated once
     v_star: np.ndarray = field(default=None)
     J: np.ndarray = field(default=None)
@@ -361,7 +363,7 @@ class FluidTwoWay(Behavior):
         if c.write_fields:
             fdir = (Path(e.base_dir) / c.fields_dir if c.fields_dir is not None
                     else Path(ctx.scene.spec.output.dir) / e.name)
-        return _TwoWay(grid, e.name, keys, g_vec, vol, damp, kd, fdir,
+        return _TwoWay(grid, e.name, keys, g_vec, vol, damp, kd, fdir, c.fields_dir is None,
                        np.zeros((m.particle_count, 3)), np.zeros((m.particle_count, 3)))
 
     def init_state(self, model, state, d):
@@ -431,7 +433,9 @@ class FluidTwoWay(Behavior):
         if d is None or d.fields_dir is None:
             return
         g = d.grid
-        write_vti(d.fields_dir / f"{ctx.frame:04d}.vti", g.origin, g.h, g.cell_velocity(), g.p)
+        folder = (ctx.out_dir / d.element if d.fields_default and ctx.out_dir is not None
+                  else d.fields_dir)
+        write_vti(folder / f"{ctx.frame:04d}.vti", g.origin, g.h, g.cell_velocity(), g.p)
 
     def state_arrays(self, d):
         if d is None:
