@@ -879,6 +879,56 @@ def plot_stats(out: str | Path, dest: str | Path | None = None) -> Path:
     return path
 
 
+def fluid_slice_image(velocity: np.ndarray, axis: str = "z", vmin: float | None = None,
+                      vmax: float | None = None, scale: int = 8) -> np.ndarray:
+    """RGB image (uint8) of the speed |u| on the middle slice of a fluid grid across ``axis``,
+    ``velocity`` (nx, ny, nz, 3); colour map viridis from ``vmin`` to ``vmax`` (default: the
+    slice's range); each cell ``scale`` pixels wide, image rows top to bottom along the second
+    axis."""
+    from matplotlib import colormaps
+
+    a = "xyz".index(axis)
+    sl = np.take(velocity, velocity.shape[a] // 2, axis=a)  # (m, k, 3), the other two axes
+    speed = np.linalg.norm(sl, axis=-1)
+    lo = float(speed.min()) if vmin is None else float(vmin)
+    hi = float(speed.max()) if vmax is None else float(vmax)
+    rgba = colormaps["viridis"](np.clip((speed - lo) / max(hi - lo, 1e-12), 0.0, 1.0))
+    img = (255 * rgba[..., :3]).astype(np.uint8).transpose(1, 0, 2)[::-1]  # second axis up
+    return np.repeat(np.repeat(img, scale, axis=0), scale, axis=1)
+
+
+def fluid_slices(out: str | Path, axis: str = "z", frames: tuple[int, int] | None = None
+                 ) -> list[Path]:
+    """PNG slices of every fluid grid a run wrote (``OUT/<element>/NNNN.vti``): the speed on
+    the middle plane across ``axis``, one colour scale per element (its speed range over the
+    frames), to ``OUT/<element>/slice_<axis>/NNNN.png``. Returns the folders written."""
+    _need_matplotlib()
+    from .behaviors.fluid.vti import read_vti  # the reader of the files the coupling writes
+
+    out = Path(out)
+    if axis not in ("x", "y", "z"):
+        raise InputError(f"preview --fluid-slices: axis must be x, y or z (got {axis!r})")
+    written = []
+    for folder in sorted(d for d in out.iterdir() if d.is_dir()) if out.is_dir() else []:
+        files = sorted(f for f in folder.glob("[0-9]*.vti") if f.stem.isdigit())
+        if frames is not None:
+            files = [f for f in files if frames[0] <= int(f.stem) <= frames[1]]
+        if not files:
+            continue
+        fields = [read_vti(f)["velocity"] for f in files]
+        speeds = [np.linalg.norm(v, axis=-1) for v in fields]
+        lo, hi = min(float(x.min()) for x in speeds), max(float(x.max()) for x in speeds)
+        dest = folder / f"slice_{axis}"
+        dest.mkdir(exist_ok=True)
+        for f, v in zip(files, fields):
+            _write_png(dest / f"{f.stem}.png", fluid_slice_image(v, axis, lo, hi))
+        written.append(dest)
+    if not written:
+        raise InputError(f"{out}: no fluid fields (.vti) to slice; a simulated FluidDomain "
+                         f"writes them with write_fields: true")
+    return written
+
+
 def preview_after_run(out: str | Path, log=None) -> list[Path]:
     """``lokigraph run --preview``: ``OUT/preview.gif`` and ``OUT/run_stats.png``."""
     paths = [render(out, "gif", log=log)]
@@ -921,6 +971,9 @@ def add_parser(sub) -> None:
                    "to OUT/run_stats.png")
     p.add_argument("-o", "--output", help="write here instead (a file for GIF/MP4, a folder "
                    "for PNG)")
+    p.add_argument("--fluid-slices", metavar="AXIS", choices=["x", "y", "z"],
+                   help="also write PNG slices of the fluid grids the run wrote (speed on the "
+                   "middle plane across AXIS) to OUT/<fluid element>/slice_AXIS/NNNN.png")
     p.add_argument("--quiet", action="store_true", help="no summary line")
 
 
@@ -933,7 +986,10 @@ def dispatch(args) -> int:
     if args.stats:
         path = plot_stats(args.out)
         say(f"wrote {path}")
-    if args.kind is not None or not args.stats:
+    if args.fluid_slices:
+        for folder in fluid_slices(args.out, args.fluid_slices, frames):
+            say(f"wrote {folder}/")
+    if args.kind is not None or not (args.stats or args.fluid_slices):
         t0 = time.perf_counter()
         path = render(args.out, args.kind or "gif", frames, camera, args.color, size, args.fps,
                       dest=args.output, ghost=0.0 if args.solid else GHOST)

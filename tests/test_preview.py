@@ -3,6 +3,7 @@ the run.json statistics plot, ``run --preview``, and one-line errors."""
 
 import json
 import shutil
+import subprocess
 import sys
 
 import numpy as np
@@ -242,3 +243,32 @@ def test_preview_reads_a_usd_run(tmp_path):
         assert pb.velocities[-1] is not None  # the stage's velocities
     assert preview.render(tmp_path / "usd", "png", frames=(6, 6))
     assert (tmp_path / "usd" / "preview" / "0006.png").is_file()
+
+
+def test_fluid_slices(tmp_path):
+    """`lokigraph preview OUT --fluid-slices z`: one PNG per written .vti, the speed on the
+    middle plane; the image's brightest pixels lie where the field is fastest."""
+    from lokigraph.behaviors.fluid.vti import write_vti
+    from lokigraph.preview import fluid_slice_image
+
+    n = (6, 5, 4)
+    vel = np.zeros(n + (3,))
+    vel[4, 3, :, 0] = 2.0  # a fast jet through cell (4, 3) of every z slice
+    for f in (1, 2):
+        write_vti(tmp_path / "air" / f"{f:04d}.vti", np.zeros(3), np.full(3, 0.1), vel,
+                  np.zeros(n))
+    (tmp_path / "cloth").mkdir()  # a mesh folder without fields is skipped
+    img = fluid_slice_image(vel, "z", scale=1)
+    assert img.shape == (5, 6, 3)  # rows: y from top to bottom, columns: x
+    bright = img.sum(-1)
+    assert np.unravel_index(bright.argmax(), bright.shape) == (5 - 1 - 3, 4)
+    r = subprocess.run([sys.executable, "-m", "lokigraph", "preview", str(tmp_path),
+                        "--fluid-slices", "z", "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "air" / "slice_z").iterdir()) == ["0001.png",
+                                                                                "0002.png"]
+    empty = tmp_path / "nothing"
+    empty.mkdir()
+    r = subprocess.run([sys.executable, "-m", "lokigraph", "preview", str(empty),
+                        "--fluid-slices", "z"], capture_output=True, text=True)
+    assert r.returncode == 2 and "no fluid fields" in r.stderr and "Traceback" not in r.stderr

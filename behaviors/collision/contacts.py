@@ -450,7 +450,7 @@ def _project_contacts(c, p, x, w) -> int:
         # skipped as inactive) until a contact moves a vertex past b; then every row from there
         c.cull_passes += 1
         ref, b2 = c.cull_ref, b * b
-        rv = re = 0
+        rv = re = -1
         if len(c.vf):
             av, rv = _project_vf_sel(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
                                      c.damping, c.vf_onesided, c.vf_sel, c.n_vf_sel, 0, ref, b2)
