@@ -49,9 +49,13 @@ class NucleusParams(Params):
     chebyshev_rho: float = Field(0.0, ge=0.0, lt=1.0, description="Chebyshev semi-iterative "
                                  "acceleration of the constraint iterations (Wang 2015): an "
                                  "estimate of the iteration's spectral radius [-]; 0 = off "
-                                 "(default). Measured on graphs/bench/cloth_sphere_64.yaml at 2 "
-                                 "substeps: worst-frame edge strain 192 % off, 101 % at 0.9, "
-                                 "65 % at 0.97, at the same cost. Too high a value oscillates.")
+                                 "(default). Measured at 0.9, worst-frame edge strain over 24 "
+                                 "frames, off -> on, same cost: cloth_pinned 10.2 -> 5.2 %, "
+                                 "flag_wind 17.1 -> 11.7 %, skirt_follow 3.7 -> 1.4 %, "
+                                 "sleeve_pinch 13.7 -> 6.0 %, cloth_on_sphere 184 -> 100 %. Off "
+                                 "by default: it also extrapolates contact corrections, and a "
+                                 "20 m/s ball into a pinned cloth at one substep then slides "
+                                 "the cloth off the ball. Too high a value oscillates.")
 
 
 def interleave_plan(types: list[tuple[str, float, int]], iterations: int,
