@@ -13,6 +13,12 @@ The final safe step checks that: after the final rounds the solved motion of the
 through the narrow phase's conservative CCD (``ccd_safe_step``); pairs that would still collide
 get contacts with the normal at the time of impact, then impact zones (see the CCD section).
 
+Exact culling (``CONTACT_CULL``): every detected row keeps a lower bound of its gap along its
+start normal at the detected end positions (``_cull_rows``); the projection skips a row whose
+bound, moved by its vertices' motion since, still exceeds its target, and while no vertex is
+farther than a few thicknesses from those positions it visits only the rows that can activate
+at all. Skipped rows are provably inactive, so results are bitwise those of projecting every row.
+
 Multilevel exclusion: per object (dynamic-dynamic, dynamic-kinematic, self), per element pair
 (``exclude_pairs``), per vertex (the ``collide`` map) and per named vertex set
 (``nocollide_sets``). One-sided colliders push only toward the outer side of their triangles and
@@ -128,6 +134,8 @@ class _Contacts:
     cull_b: float = -1.0
     vf_sel: np.ndarray = field(default_factory=lambda: np.zeros(256, np.int64))
     ee_sel: np.ndarray = field(default_factory=lambda: np.zeros(256, np.int64))
+    vf_lb: np.ndarray = field(default_factory=lambda: np.zeros(256))
+    ee_lb: np.ndarray = field(default_factory=lambda: np.zeros(256))
     n_vf_sel: int = 0
     n_ee_sel: int = 0
     cull_passes: int = 0  # projection passes over the culled rows / over every row (counts)
@@ -398,19 +406,23 @@ def _cull(d, x1):
     lim = 2.0 * b + _CULL_TOL
     for kind in ("vf", "ee"):
         rows = getattr(d, kind)
-        sel = getattr(d, kind + "_sel")
+        sel, lb = getattr(d, kind + "_sel"), getattr(d, kind + "_lb")
         if len(rows) > len(sel):
             sel = np.zeros(max(2 * len(sel), len(rows)), np.int64)
+            lb = np.zeros(len(sel))
             setattr(d, kind + "_sel", sel)
+            setattr(d, kind + "_lb", lb)
         k = _cull_rows(rows, getattr(d, kind + "_n"), getattr(d, kind + "_target"),
-                       d.cull_ref, kind == "vf", lim, sel)
+                       d.cull_ref, kind == "vf", lim, sel, lb)
         setattr(d, "n_" + kind + "_sel", k)
     d.cull_b = b
 
 
 @njit(cache=True)
-def _cull_rows(rows, nrm, target, ref, is_vf, lim, sel):
+def _cull_rows(rows, nrm, target, ref, is_vf, lim, sel, lb):
     """Rows that may activate; writes their numbers, in order, to ``sel``; returns the count.
+    ``lb[r]`` gets ``L - target`` of every row (the projection's per-row gate, see
+    ``_project_ee_sel``).
 
     A contact's gap in the projection, ``g = d . n`` (``d`` the closest-point difference at
     the iterate, ``n`` the start normal ``n0`` or, when ``d . n0 > 0``, ``d / |d|``), is at
@@ -435,7 +447,8 @@ def _cull_rows(rows, nrm, target, ref, is_vf, lim, sel):
                      ref[a1, 0] * n0 + ref[a1, 1] * n1 + ref[a1, 2] * n2)
             hi = max(ref[b0, 0] * n0 + ref[b0, 1] * n1 + ref[b0, 2] * n2,
                      ref[b1, 0] * n0 + ref[b1, 1] * n1 + ref[b1, 2] * n2)
-        if not (lo - hi - target[r] >= lim):  # NaN keeps the row
+        lb[r] = lo - hi - target[r]
+        if not (lb[r] >= lim):  # NaN keeps the row
             sel[k] = r
             k += 1
     return k
@@ -445,35 +458,40 @@ def _project_contacts(c, p, x, w) -> int:
     """One Gauss-Seidel pass over all packed contacts; returns the number of active ones."""
     a = 0
     b = c.cull_b
-    if b >= 0.0 and c.cull_ref is not None and _max_move(c.cull_ref, p) <= b:
-        # only the rows that can activate, in their order (exact: the others would be
-        # skipped as inactive) until a contact moves a vertex past b; then every row from there
-        c.cull_passes += 1
-        ref, b2 = c.cull_ref, b * b
-        rv = re = -1
+    if b < 0.0 or c.cull_ref is None:
         if len(c.vf):
-            av, rv = _project_vf_sel(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
-                                     c.damping, c.vf_onesided, c.vf_sel, c.n_vf_sel, 0, ref, b2)
-            a += av
-            if rv >= 0:
-                a += _project_vf_sel(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
-                                     c.damping, c.vf_onesided, c.vf_sel, -1, rv, ref, b2)[0]
+            a += project_vf(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
+                            c.damping, c.vf_onesided)
         if len(c.ee):
-            if rv < 0:
-                ae, re = _project_ee_sel(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu,
-                                         c.ee_strength, c.damping, c.ee_sel, c.n_ee_sel, 0, ref,
-                                         b2)
-                a += ae
-            if rv >= 0 or re >= 0:
-                a += _project_ee_sel(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
-                                     c.damping, c.ee_sel, -1, max(re, 0), ref, b2)[0]
+            a += project_ee(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
+                            c.damping)
         return a
-    c.full_passes += 1
+    # exact culling: rows are gated by their bound (``lb``) and, while no vertex is farther than
+    # b from the detected end positions, only the rows that can then activate are visited, in
+    # their order, until a contact moves a vertex past b (then every row from there on)
+    ref, b2 = c.cull_ref, b * b
+    lbv, lbe = c.vf_lb[:len(c.vf)], c.ee_lb[:len(c.ee)]
+    nv, ne = (c.n_vf_sel, c.n_ee_sel) if _max_move(ref, p) <= b else (-1, -1)
+    if nv >= 0:
+        c.cull_passes += 1
+    else:
+        c.full_passes += 1
+    rv = re = -1
     if len(c.vf):
-        a += project_vf(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength, c.damping,
-                        c.vf_onesided)
+        av, rv = _project_vf_sel(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
+                                 c.damping, c.vf_onesided, c.vf_sel, nv, 0, ref, b2, lbv)
+        a += av
+        if rv >= 0:
+            a += _project_vf_sel(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
+                                 c.damping, c.vf_onesided, c.vf_sel, -1, rv, ref, b2, lbv)[0]
+            ne = -1
     if len(c.ee):
-        a += project_ee(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength, c.damping)
+        ae, re = _project_ee_sel(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
+                                 c.damping, c.ee_sel, ne, 0, ref, b2, lbe)
+        a += ae
+        if re >= 0:
+            a += _project_ee_sel(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
+                                 c.damping, c.ee_sel, -1, re, ref, b2, lbe)[0]
     return a
 
 
@@ -493,15 +511,19 @@ def _pack(d, vf_all, ee_all):
         else np.zeros(0)
 
 
-@njit(cache=True)
-def _tri_normal(x, a, b, c):
-    e1 = x[b] - x[a]
-    e2 = x[c] - x[a]
-    n = np.cross(e1, e2)
-    ln = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
+@njit(cache=True, inline="always")
+def _tri_normal_s(x, a, b, c):
+    """Unit normal of triangle abc and twice its area [m^2]: (n0, n1, n2, |n|); for a degenerate
+    one the unnormalised normal and 0. Scalars, no allocation."""
+    e0, e1, e2 = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+    f0, f1, f2 = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
+    n0 = e1 * f2 - e2 * f1
+    n1 = e2 * f0 - e0 * f2
+    n2 = e0 * f1 - e1 * f0
+    ln = np.sqrt(n0 ** 2 + n1 ** 2 + n2 ** 2)
     if ln < 1e-300:
-        return n, 0.0
-    return n / ln, ln
+        return n0, n1, n2, 0.0
+    return n0 / ln, n1 / ln, n2 / ln, ln
 
 
 @njit(cache=True)
@@ -549,11 +571,11 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
         if not recover[et] or recover[ep] or not allow[ep, et]:
             continue
         a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
-        tn, area2 = _tri_normal(x, a, b, c)
+        tn0, tn1, tn2, area2 = _tri_normal_s(x, a, b, c)
         if area2 == 0.0 or _min_bary(x[p], x[a], x[b], x[c]) < -1e-3:
             continue
-        side = ((x[p, 0] - x[a, 0]) * tn[0] + (x[p, 1] - x[a, 1]) * tn[1]
-                + (x[p, 2] - x[a, 2]) * tn[2])
+        side = ((x[p, 0] - x[a, 0]) * tn0 + (x[p, 1] - x[a, 1]) * tn1
+                + (x[p, 2] - x[a, 2]) * tn2)
         if abs(side) < near_d[p, et]:
             near_d[p, et] = abs(side)
             near_s[p, et] = 1 if side >= 0.0 else -1
@@ -575,10 +597,12 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
         d2, b0, b1, b2 = _pt_tri_sq(x[p, 0], x[p, 1], x[p, 2], x[a, 0], x[a, 1], x[a, 2],
                                      x[b, 0], x[b, 1], x[b, 2], x[c, 0], x[c, 1], x[c, 2])
         d0 = np.sqrt(d2)
-        tn, area2 = _tri_normal(x, a, b, c)
-        q = b0 * x[a] + b1 * x[b] + b2 * x[c]
-        diff = x[p] - q
-        side = diff[0] * tn[0] + diff[1] * tn[1] + diff[2] * tn[2]
+        tn0, tn1, tn2, area2 = _tri_normal_s(x, a, b, c)
+        # scalar arithmetic (no per-candidate allocation), the same operations as vectors
+        df0 = x[p, 0] - (b0 * x[a, 0] + b1 * x[b, 0] + b2 * x[c, 0])
+        df1 = x[p, 1] - (b0 * x[a, 1] + b1 * x[b, 1] + b2 * x[c, 1])
+        df2 = x[p, 2] - (b0 * x[a, 2] + b1 * x[b, 2] + b2 * x[c, 2])
+        side = df0 * tn0 + df1 * tn1 + df2 * tn2
         if one_sided[et]:
             if area2 == 0.0:
                 continue
@@ -588,7 +612,7 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
                 continue
             if side < -(th_out[p] + th_in[a] + margin):
                 continue  # deep inside a one-sided body: let it through
-            n = tn
+            n0, n1, n2 = tn0, tn1, tn2
             gap0 = side  # signed: negative = inside
             th = th_out[p] + (th_out[a] * b0 + th_out[b] * b1 + th_out[c] * b2)
             onesd = True
@@ -609,14 +633,20 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
                 continue  # pushed through this sheet: only the triangles it is under pull back
             if crossed:
                 crossed_at[p, et] = stamp
-                n = -tn if side >= 0.0 else tn
+                if side >= 0.0:
+                    n0, n1, n2 = -tn0, -tn1, -tn2
+                else:
+                    n0, n1, n2 = tn0, tn1, tn2
                 gap0 = -d0
                 side = -side
             elif d0 > 1e-12:
-                n = diff / d0
+                n0, n1, n2 = df0 / d0, df1 / d0, df2 / d0
                 gap0 = d0
             elif area2 > 0.0:
-                n = tn if side >= 0.0 else -tn
+                if side >= 0.0:
+                    n0, n1, n2 = tn0, tn1, tn2
+                else:
+                    n0, n1, n2 = -tn0, -tn1, -tn2
                 gap0 = d0
             else:
                 continue
@@ -626,8 +656,9 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
                 th = th_out[p] + (th_in[a] * b0 + th_in[b] * b1 + th_in[c] * b2)
             onesd = False
         # relative normal approach speed at the start (for restitution)
-        vr = v[p] - (b0 * v[a] + b1 * v[b] + b2 * v[c])
-        vn = vr[0] * n[0] + vr[1] * n[1] + vr[2] * n[2]
+        vn = ((v[p, 0] - (b0 * v[a, 0] + b1 * v[b, 0] + b2 * v[c, 0])) * n0
+              + (v[p, 1] - (b0 * v[a, 1] + b1 * v[b, 1] + b2 * v[c, 1])) * n1
+              + (v[p, 2] - (b0 * v[a, 2] + b1 * v[b, 2] + b2 * v[c, 2])) * n2)
         target = th
         if restitution > 0.0 and vn < 0.0:
             target = th - restitution * vn * h
@@ -640,9 +671,9 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
         rows[k, 1] = a
         rows[k, 2] = b
         rows[k, 3] = c
-        nrm[k, 0] = n[0]
-        nrm[k, 1] = n[1]
-        nrm[k, 2] = n[2]
+        nrm[k, 0] = n0
+        nrm[k, 1] = n1
+        nrm[k, 2] = n2
         tgt[k] = target
         mu[k] = 0.5 * (fric[p] + (fric[a] + fric[b] + fric[c]) / 3.0)
         one[k] = onesd
@@ -679,32 +710,37 @@ def _filter_ee(cand, edges, edge_elem, allow, tolerant, th, fric, visible, setma
         d2, s, t = _seg_seg_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1], x[a1, 2],
                                x[b0, 0], x[b0, 1], x[b0, 2], x[b1, 0], x[b1, 1], x[b1, 2])
         d0 = np.sqrt(d2)
-        pa = (1 - s) * x[a0] + s * x[a1]
-        pb = (1 - t) * x[b0] + t * x[b1]
+        # scalar arithmetic (no per-candidate allocation), the same operations as vectors
         if d0 > 1e-12:
-            n = (pa - pb) / d0
-        else:
+            n0 = ((1 - s) * x[a0, 0] + s * x[a1, 0] - ((1 - t) * x[b0, 0] + t * x[b1, 0])) / d0
+            n1 = ((1 - s) * x[a0, 1] + s * x[a1, 1] - ((1 - t) * x[b0, 1] + t * x[b1, 1])) / d0
+            n2 = ((1 - s) * x[a0, 2] + s * x[a1, 2] - ((1 - t) * x[b0, 2] + t * x[b1, 2])) / d0
+        else:  # rare: touching or crossing edges, normal of both edges
             n = np.cross(x[a1] - x[a0], x[b1] - x[b0])
             ln = np.sqrt(n[0] ** 2 + n[1] ** 2 + n[2] ** 2)
             if ln < 1e-300:
                 continue
             n = n / ln
+            n0, n1, n2 = n[0], n[1], n[2]
         if one_sided[ea] or one_sided[eb]:
             # against a one-sided mesh: only a pair that starts on its outer side collides
             # (outer = along the mesh's vertex normals at its closest point)
             if d0 <= 1e-12:
                 continue
             if one_sided[eb]:
-                on = (1 - t) * vnorm[b0] + t * vnorm[b1]
-                out = n[0] * on[0] + n[1] * on[1] + n[2] * on[2]
+                out = (n0 * ((1 - t) * vnorm[b0, 0] + t * vnorm[b1, 0])
+                       + n1 * ((1 - t) * vnorm[b0, 1] + t * vnorm[b1, 1])
+                       + n2 * ((1 - t) * vnorm[b0, 2] + t * vnorm[b1, 2]))
             else:
-                on = (1 - s) * vnorm[a0] + s * vnorm[a1]
-                out = -(n[0] * on[0] + n[1] * on[1] + n[2] * on[2])
+                out = -(n0 * ((1 - s) * vnorm[a0, 0] + s * vnorm[a1, 0])
+                        + n1 * ((1 - s) * vnorm[a0, 1] + s * vnorm[a1, 1])
+                        + n2 * ((1 - s) * vnorm[a0, 2] + s * vnorm[a1, 2]))
             if out <= 0.0:
                 continue
         thk = (1 - s) * th[a0] + s * th[a1] + (1 - t) * th[b0] + t * th[b1]
-        vr = (1 - s) * v[a0] + s * v[a1] - (1 - t) * v[b0] - t * v[b1]
-        vn = vr[0] * n[0] + vr[1] * n[1] + vr[2] * n[2]
+        vn = (((1 - s) * v[a0, 0] + s * v[a1, 0] - (1 - t) * v[b0, 0] - t * v[b1, 0]) * n0
+              + ((1 - s) * v[a0, 1] + s * v[a1, 1] - (1 - t) * v[b0, 1] - t * v[b1, 1]) * n1
+              + ((1 - s) * v[a0, 2] + s * v[a1, 2] - (1 - t) * v[b0, 2] - t * v[b1, 2]) * n2)
         target = thk
         if restitution > 0.0 and vn < 0.0:
             target = thk - restitution * vn * h
@@ -715,7 +751,9 @@ def _filter_ee(cand, edges, edge_elem, allow, tolerant, th, fric, visible, setma
         rows[k, 1] = a1
         rows[k, 2] = b0
         rows[k, 3] = b1
-        nrm[k] = n
+        nrm[k, 0] = n0
+        nrm[k, 1] = n1
+        nrm[k, 2] = n2
         tgt[k] = target
         mu[k] = 0.25 * (fric[a0] + fric[a1] + fric[b0] + fric[b1])
         k += 1
@@ -727,11 +765,18 @@ def project_vf(p, x, w, rows, nrm, target, mu, strength, damping, onesided):
     """Gauss-Seidel over vertex-face contacts: n . (p_v - sum b_k p_k) >= target, plus
     position-based Coulomb friction on the relative tangential motion of the substep."""
     return _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
-                           _NO_SEL, -1, 0, _NO_REF, -1.0)[0]
+                           _NO_SEL, -1, 0, _NO_REF, -1.0, _NO_LB)[0]
 
 
 _NO_SEL = np.zeros(0, np.int64)
 _NO_REF = np.zeros((0, 3))
+_NO_LB = np.zeros(0)
+
+
+@njit(cache=True, inline="always")
+def _dn(p, ref, i, n0, n1, n2):
+    """Motion [m] of vertex i from its reference position along (n0, n1, n2)."""
+    return (p[i, 0] - ref[i, 0]) * n0 + (p[i, 1] - ref[i, 1]) * n1 + (p[i, 2] - ref[i, 2]) * n2
 
 
 @njit(cache=True)
@@ -742,16 +787,27 @@ def _moved2(p, ref, i):
 
 @njit(cache=True)
 def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided, sel, nsel,
-                    start, ref, b2):
+                    start, ref, b2, lb):
     """``project_vf`` over the rows ``sel[:nsel]`` in that order (rows ``start:`` if nsel < 0).
     Over a selection, a row that moves one of its vertices farther than ``sqrt(b2)`` from
     ``ref`` ends the pass early: returns (active, the row number to resume every row from);
-    otherwise (active, -1)."""
+    otherwise (active, -1). With ``lb`` (``L - target`` of every row, ``_cull_rows``), a row
+    whose gap provably exceeds its target, ``lb + min over the first primitive's vertices of
+    (p - ref) . n0 - max over the second's >= tol``, is skipped before its distance query
+    (exact: it would be inactive)."""
     active = 0
     n_it = rows.shape[0] if nsel < 0 else nsel
     for it in range(start if nsel < 0 else 0, n_it):
         r = it if nsel < 0 else sel[it]
         v, a, b, c = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+        if lb.shape[0]:
+            m0, m1, m2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+            sv = _dn(p, ref, v, m0, m1, m2)
+            sa = _dn(p, ref, a, m0, m1, m2)
+            sb = _dn(p, ref, b, m0, m1, m2)
+            sc = _dn(p, ref, c, m0, m1, m2)
+            if lb[r] + sv - max(sa, sb, sc) >= _CULL_TOL:
+                continue
         d2, b0, b1, b2 = _pt_tri_sq(p[v, 0], p[v, 1], p[v, 2], p[a, 0], p[a, 1], p[a, 2],
                                      p[b, 0], p[b, 1], p[b, 2], p[c, 0], p[c, 1], p[c, 2])
         n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
@@ -813,25 +869,35 @@ def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
 def project_ee(p, x, w, rows, nrm, target, mu, strength, damping):
     """Gauss-Seidel over edge-edge contacts: n . (x_a(s) - x_b(t)) >= target, with friction."""
     return _project_ee_sel(p, x, w, rows, nrm, target, mu, strength, damping, _NO_SEL, -1, 0,
-                           _NO_REF, -1.0)[0]
+                           _NO_REF, -1.0, _NO_LB)[0]
 
 
 @njit(cache=True)
 def _project_ee_sel(p, x, w, rows, nrm, target, mu, strength, damping, sel, nsel, start, ref,
-                    b2):
+                    b2, lb):
     """``project_ee`` over the rows ``sel[:nsel]`` in that order (rows ``start:`` if nsel < 0);
     scalar arithmetic, no per-row allocation.
     Over a selection, a row that moves one of its vertices farther than ``sqrt(b2)`` from
     ``ref`` ends the pass early: returns (active, the row number to resume every row from);
-    otherwise (active, -1)."""
+    otherwise (active, -1). With ``lb`` (``L - target`` of every row, ``_cull_rows``), a row
+    whose gap provably exceeds its target, ``lb + min over the first primitive's vertices of
+    (p - ref) . n0 - max over the second's >= tol``, is skipped before its distance query
+    (exact: it would be inactive)."""
     active = 0
     n_it = rows.shape[0] if nsel < 0 else nsel
     for it in range(start if nsel < 0 else 0, n_it):
         r = it if nsel < 0 else sel[it]
         a0, a1, b0, b1 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+        if lb.shape[0]:
+            s0 = _dn(p, ref, a0, n0, n1, n2)
+            s1 = _dn(p, ref, a1, n0, n1, n2)
+            s2 = _dn(p, ref, b0, n0, n1, n2)
+            s3 = _dn(p, ref, b1, n0, n1, n2)
+            if lb[r] + min(s0, s1) - max(s2, s3) >= _CULL_TOL:
+                continue
         d2, s, t = _seg_seg_sq(p[a0, 0], p[a0, 1], p[a0, 2], p[a1, 0], p[a1, 1], p[a1, 2],
                                p[b0, 0], p[b0, 1], p[b0, 2], p[b1, 0], p[b1, 1], p[b1, 2])
-        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
         ca, cb, cc, cd = 1.0 - s, s, -(1.0 - t), -t
         dv0 = ca * p[a0, 0] + cb * p[a1, 0] + cc * p[b0, 0] + cd * p[b1, 0]
         dv1 = ca * p[a0, 1] + cb * p[a1, 1] + cc * p[b0, 1] + cd * p[b1, 1]
