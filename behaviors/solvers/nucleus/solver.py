@@ -53,9 +53,9 @@ class NucleusParams(Params):
                                  "frames, off -> on, same cost: cloth_pinned 10.2 -> 5.2 %, "
                                  "flag_wind 17.1 -> 11.7 %, skirt_follow 3.7 -> 1.4 %, "
                                  "sleeve_pinch 13.7 -> 6.0 %, cloth_on_sphere 184 -> 100 %. Off "
-                                 "by default: it also extrapolates contact corrections, and a "
-                                 "20 m/s ball into a pinned cloth at one substep then slides "
-                                 "the cloth off the ball. Too high a value oscillates.")
+                                 "by default: with it on, a 20 m/s ball shot into a pinned "
+                                 "cloth at one substep slides the cloth off itself (cause not "
+                                 "found). Too high a value oscillates.")
 
 
 def interleave_plan(types: list[tuple[str, float, int]], iterations: int,
