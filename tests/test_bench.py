@@ -189,3 +189,13 @@ def test_bench_fluid_pressure_table(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "lokigraph", "bench", "--fluid", "1000"],
                          capture_output=True, text=True)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr
+
+
+def test_sweep_values_keep_their_type():
+    """Sweep values from the command line are text; from Python they may be numbers, which are
+    kept as given (a float 0.97 once became int 0)."""
+    from lokigraph.bench.sweep import _num
+
+    assert _num("3") == 3 and isinstance(_num("3"), int)
+    assert _num("0.97") == 0.97 and _num(0.97) == 0.97 and _num(4) == 4
+    assert _num("true") is True and _num(False) is False and _num("pcg") == "pcg"

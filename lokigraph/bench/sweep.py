@@ -61,6 +61,10 @@ def _apply(scene, setting: dict):
 
 
 def _num(v):
+    """A sweep value: numbers and booleans as given; text as an int, a float, true/false or
+    itself (``int(0.97)`` would silently give 0 for a float passed from Python)."""
+    if isinstance(v, (bool, int, float)):
+        return v
     for t in (int, float):
         try:
             return t(v)
