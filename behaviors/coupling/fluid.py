@@ -55,6 +55,7 @@ from lokigraph.keys import Keyed, step_frame
 from ..air.kernels import implicit_drag_update_inv_mass
 from ..fluid.grid import FACES, KINDS, MAX_CELLS, MacGrid, solid_face_fractions
 from ..fluid.vti import write_vti
+from ..solvers.damping import apply_damping, bind_damping
 
 
 @njit(cache=True, parallel=True)
@@ -336,17 +337,10 @@ class FluidTwoWay(Behavior):
             step_c_project(grid, dt, g_vec)
             grid.u[...], grid.v[...], grid.w[...] = u0
         # per-vertex damping (the Nucleus solver's v *= exp(-damping h)) and buoyancy volume
-        damp = np.zeros(m.particle_count)
-        kd = []
+        dynamic = [el for el in ctx.scene.elements if el.has(Dynamic)]
+        damp, kd = bind_damping(m, dynamic)
         vol = np.zeros(m.particle_count) if c.buoyancy else None
-        for el in ctx.scene.elements:
-            if not el.has(Dynamic):
-                continue
-            dmp = el.get(Dynamic).damping
-            if isinstance(dmp, Keyed):
-                kd.append((el.vertex_slice, dmp))
-            else:
-                damp[el.vertex_slice] = dmp
+        for el in dynamic:
             if vol is not None and el.has(Drag) and el.geometry is not None:
                 dg = el.get(Drag)
                 g = el.geometry
@@ -385,16 +379,9 @@ class FluidTwoWay(Behavior):
                 grid.inflow[i] = key.evaluate(f)
             grid.apply_boundaries()
         # v* = what the Nucleus solver had before its drag update; v' = after it
-        if d.keyed_damping:
-            f = step_frame(ctx)
-            for sl, key in d.keyed_damping:
-                d.damp[sl] = key.evaluate(f)
         vs = d.v_star
-        v0 = st.fields["fluid_v0"]
-        if d.damp.any():
-            np.multiply(v0, np.exp(-d.damp * h)[:, None], out=vs)
-        else:
-            vs[...] = v0
+        vs[...] = st.fields["fluid_v0"]
+        apply_damping(ctx, vs, d.damp, d.keyed_damping)  # as the solver damped it
         vs += (h * m.particle_inv_mass)[:, None] * st.particle_f
         D = st.fields.get("drag_D")
         J = d.J
