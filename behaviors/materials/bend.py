@@ -49,17 +49,14 @@ def _wrap_angle(d):
 
 
 @_hot
-def _dihedral_one(j, p, w, quads, rest, alpha, dropoff, lam, inv_h2):
-    i0 = quads[j, 0]
-    i1 = quads[j, 1]
-    i2 = quads[j, 2]
-    i3 = quads[j, 3]
-    w0 = w[i0]
-    w1 = w[i1]
-    w2 = w[i2]
-    w3 = w[i3]
-    if w0 + w1 + w2 + w3 <= 0.0:
-        return
+def _hinge(p, i0, i1, i2, i3):
+    """Signed dihedral angle of the hinge (i0, i1) with wings i2, i3 and its gradients.
+
+    Returns ``(status, theta, g0x, g0y, g0z, g1x, ..., g3z)``: status 0 = hinge edge too
+    short (nothing valid), 1 = a wing of (almost) zero height (theta valid, no gradient
+    direction), 2 = theta and the gradients valid (Bridson et al. 2003: g2 = -|e| NA / |NA|^2,
+    g3 = -|e| NB / |NB|^2, g1 = -(s2 g2 + s3 g3), g0 = -((1 - s2) g2 + (1 - s3) g3), s the
+    projection on the hinge). Shared by the Nucleus projection and the implicit energy."""
     ex = p[i1, 0] - p[i0, 0]
     ey = p[i1, 1] - p[i0, 1]
     ez = p[i1, 2] - p[i0, 2]
@@ -71,7 +68,7 @@ def _dihedral_one(j, p, w, quads, rest, alpha, dropoff, lam, inv_h2):
     bz = p[i3, 2] - p[i0, 2]
     e2 = ex * ex + ey * ey + ez * ez
     if e2 < _LEN_EPS * _LEN_EPS:
-        return
+        return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     el = math.sqrt(e2)
     # NA = e x a (normal of (i0, i1, i2)), NB = b x e (normal of (i1, i0, i3))
     nax = ey * az - ez * ay
@@ -83,21 +80,14 @@ def _dihedral_one(j, p, w, quads, rest, alpha, dropoff, lam, inv_h2):
     na2 = nax * nax + nay * nay + naz * naz
     nb2 = nbx * nbx + nby * nby + nbz * nbz
     lim = _REL_EPS * e2
-    if na2 <= lim * lim or nb2 <= lim * lim:
-        return  # a triangle of the hinge has (almost) zero height
     # signed angle: atan2((NA x NB) . e_hat, NA . NB)
     cx = nay * nbz - naz * nby
     cy = naz * nbx - nax * nbz
     cz = nax * nby - nay * nbx
-    al = alpha[j]
-    if not al < _INF:
-        return
     # both atan2 arguments scaled by |e|: saves a division
     theta = math.atan2(cx * ex + cy * ey + cz * ez, el * (nax * nbx + nay * nby + naz * nbz))
-    c = _wrap_angle(theta - rest[j])
-    al = al / bend_dropoff_scale(c, dropoff[j])
-    # gradients (Bridson et al. 2003): g2 = -|e| NA / |NA|^2, g3 = -|e| NB / |NB|^2,
-    # g1 = -(s2 g2 + s3 g3), g0 = -((1 - s2) g2 + (1 - s3) g3), s = projection on the hinge
+    if na2 <= lim * lim or nb2 <= lim * lim:
+        return 1, theta, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     f2 = -el / na2
     f3 = -el / nb2
     g2x = f2 * nax
@@ -115,6 +105,30 @@ def _dihedral_one(j, p, w, quads, rest, alpha, dropoff, lam, inv_h2):
     g0x = -(g2x + g3x) - g1x
     g0y = -(g2y + g3y) - g1y
     g0z = -(g2z + g3z) - g1z
+    return 2, theta, g0x, g0y, g0z, g1x, g1y, g1z, g2x, g2y, g2z, g3x, g3y, g3z
+
+
+@_hot
+def _dihedral_one(j, p, w, quads, rest, alpha, dropoff, lam, inv_h2):
+    i0 = quads[j, 0]
+    i1 = quads[j, 1]
+    i2 = quads[j, 2]
+    i3 = quads[j, 3]
+    w0 = w[i0]
+    w1 = w[i1]
+    w2 = w[i2]
+    w3 = w[i3]
+    if w0 + w1 + w2 + w3 <= 0.0:
+        return
+    al = alpha[j]
+    if not al < _INF:
+        return
+    (st, theta, g0x, g0y, g0z, g1x, g1y, g1z, g2x, g2y, g2z, g3x, g3y,
+     g3z) = _hinge(p, i0, i1, i2, i3)
+    if st < 2:
+        return  # a short hinge or a wing of (almost) zero height
+    c = _wrap_angle(theta - rest[j])
+    al = al / bend_dropoff_scale(c, dropoff[j])
     den = (w0 * (g0x * g0x + g0y * g0y + g0z * g0z) + w1 * (g1x * g1x + g1y * g1y + g1z * g1z)
            + w2 * (g2x * g2x + g2y * g2y + g2z * g2z) + w3 * (g3x * g3x + g3y * g3y + g3z * g3z))
     if den <= 0.0:
@@ -334,52 +348,20 @@ def dihedral_energy(x, quads, rest, alpha, dropoff, mode, grad, hess):
         i1 = quads[j, 1]
         i2 = quads[j, 2]
         i3 = quads[j, 3]
-        ex = x[i1, 0] - x[i0, 0]
-        ey = x[i1, 1] - x[i0, 1]
-        ez = x[i1, 2] - x[i0, 2]
-        ax = x[i2, 0] - x[i0, 0]
-        ay = x[i2, 1] - x[i0, 1]
-        az = x[i2, 2] - x[i0, 2]
-        bx = x[i3, 0] - x[i0, 0]
-        by = x[i3, 1] - x[i0, 1]
-        bz = x[i3, 2] - x[i0, 2]
-        e2 = ex * ex + ey * ey + ez * ez
-        if e2 < _LEN_EPS * _LEN_EPS:
+        (st, theta, g0x, g0y, g0z, g1x, g1y, g1z, g2x, g2y, g2z, g3x, g3y,
+         g3z) = _hinge(x, i0, i1, i2, i3)
+        if st == 0:
             continue
-        el = math.sqrt(e2)
-        nax = ey * az - ez * ay
-        nay = ez * ax - ex * az
-        naz = ex * ay - ey * ax
-        nbx = by * ez - bz * ey
-        nby = bz * ex - bx * ez
-        nbz = bx * ey - by * ex
-        na2 = nax * nax + nay * nay + naz * naz
-        nb2 = nbx * nbx + nby * nby + nbz * nbz
-        lim = _REL_EPS * e2
-        cx = nay * nbz - naz * nby
-        cy = naz * nbx - nax * nbz
-        cz = nax * nby - nay * nbx
-        theta = math.atan2(cx * ex + cy * ey + cz * ez, el * (nax * nbx + nay * nby + naz * nbz))
         c = _wrap_angle(theta - rest[j])
         d = dropoff[j]
         ac = abs(c)
         E += kk * (0.5 * c * c + d * ac * ac * ac / (3.0 * _PI))
-        if na2 <= lim * lim or nb2 <= lim * lim:
+        if st == 1:
             continue  # a wing of (almost) zero height: no direction
-        f2 = -el / na2
-        f3 = -el / nb2
-        g[2, 0] = f2 * nax
-        g[2, 1] = f2 * nay
-        g[2, 2] = f2 * naz
-        g[3, 0] = f3 * nbx
-        g[3, 1] = f3 * nby
-        g[3, 2] = f3 * nbz
-        ie2 = 1.0 / e2
-        s2 = (ax * ex + ay * ey + az * ez) * ie2
-        s3 = (bx * ex + by * ey + bz * ez) * ie2
-        for r in range(3):
-            g[1, r] = -(s2 * g[2, r] + s3 * g[3, r])
-            g[0, r] = -(g[2, r] + g[3, r]) - g[1, r]
+        g[0, 0], g[0, 1], g[0, 2] = g0x, g0y, g0z
+        g[1, 0], g[1, 1], g[1, 2] = g1x, g1y, g1z
+        g[2, 0], g[2, 1], g[2, 2] = g2x, g2y, g2z
+        g[3, 0], g[3, 1], g[3, 2] = g3x, g3y, g3z
         _scalar_term(j, quads, 4, g, kk * (1.0 + 2.0 * d * ac / _PI), c,
                      kk * (c + d * c * ac / _PI), mode, grad, hess)
     return E
