@@ -77,10 +77,10 @@ from lokigraph.components.core import Dynamic
 from lokigraph.components.materials import Rod
 from lokigraph.meshfile import curve_chains
 
-from ..solvers.nucleus.xpbd import (_INF, _LEN_EPS, _REL_EPS, PARALLEL_MIN_CONSTRAINTS, _hot,
+from ..solvers.nucleus.xpbd import (_INF, _LEN_EPS, PARALLEL_MIN_CONSTRAINTS, _hot,
                                     residual)
 from .common import _rest
-from .shear import rest_angles
+from .shear import _apex, rest_angles
 
 #: constraint rows per segment: the stretch of segment k is row 3k, the bend at vertex k rows
 #: 3k - 2 and 3k - 1 (two components of the curvature vector across the strand)
@@ -264,40 +264,16 @@ def _strand_rows(s, p, w, verts, vptr, rptr, kind, rest, alpha, alpha2, lam, lam
                 rhs[jq] = -c - att * lq
             continue
         # _BEND_ANGLE (curved rest): C = angle at the apex - rest (type 2)
-        ux = p[a, 0] - p[o, 0]
-        uy = p[a, 1] - p[o, 1]
-        uz = p[a, 2] - p[o, 2]
-        vx = p[b, 0] - p[o, 0]
-        vy = p[b, 1] - p[o, 1]
-        vz = p[b, 2] - p[o, 2]
-        lu2 = ux * ux + uy * uy + uz * uz
-        lv2 = vx * vx + vy * vy + vz * vz
-        if lu2 < _LEN_EPS * _LEN_EPS or lv2 < _LEN_EPS * _LEN_EPS:
-            continue
-        iu = 1.0 / math.sqrt(lu2)
-        iv = 1.0 / math.sqrt(lv2)
-        ux *= iu
-        uy *= iu
-        uz *= iu
-        vx *= iv
-        vy *= iv
-        vz *= iv
-        cs = ux * vx + uy * vy + uz * vz
-        cxx = uy * vz - uz * vy
-        cxy = uz * vx - ux * vz
-        cxz = ux * vy - uy * vx
-        sn = math.sqrt(cxx * cxx + cxy * cxy + cxz * cxz)
-        if sn < _REL_EPS:
-            continue  # collinear: the direction of the angle change is undefined
-        c = math.atan2(sn, cs) - rest[j]
-        ga = -iu / sn
-        gb = -iv / sn
-        G[j, 0, 0] = ga * (vx - cs * ux)
-        G[j, 0, 1] = ga * (vy - cs * uy)
-        G[j, 0, 2] = ga * (vz - cs * uz)
-        G[j, 2, 0] = gb * (ux - cs * vx)
-        G[j, 2, 1] = gb * (uy - cs * vy)
-        G[j, 2, 2] = gb * (uz - cs * vz)
+        st, theta, gax, gay, gaz, gbx, gby, gbz, gox, goy, goz = _apex(p, o, a, b)
+        if st < 2:
+            continue  # a short arm, or collinear: the direction of the angle change is undefined
+        c = theta - rest[j]
+        G[j, 0, 0] = gax
+        G[j, 0, 1] = gay
+        G[j, 0, 2] = gaz
+        G[j, 2, 0] = gbx
+        G[j, 2, 1] = gby
+        G[j, 2, 2] = gbz
         for k in range(3):
             G[j, 1, k] = -G[j, 0, k] - G[j, 2, k]
         at[j] = al * inv_h2

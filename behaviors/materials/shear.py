@@ -24,15 +24,15 @@ from .common import Packed, _concat, _rest
 # XPBD kernels: angle at a vertex (shear of a triangle corner, bend of a curve)
 # ==============================================================================================
 @_hot
-def _angle_one(j, p, w, tri, rest, alpha, lam, inv_h2):
-    o = tri[j, 0]
-    a = tri[j, 1]
-    b = tri[j, 2]
-    wo = w[o]
-    wa = w[a]
-    wb = w[b]
-    if wo + wa + wb <= 0.0:
-        return
+def _apex(p, o, a, b):
+    """Angle at the apex o between o->a and o->b and its gradients.
+
+    Returns ``(status, theta, gax, gay, gaz, gbx, gby, gbz, gox, goy, goz)``: status 0 = an
+    arm too short (nothing valid), 1 = collinear arms (theta valid, the direction of its change
+    undefined), 2 = theta and the gradients valid. With unit u, v: d theta / d p_a =
+    -(v - cs u) / (|e_a| sn), d theta / d p_b = -(u - cs v) / (|e_b| sn) (|v - cs u| = sn),
+    d theta / d p_o = -(both). Shared by the corner shear and curve bend projections, the
+    direct rod solve and the implicit angle energy."""
     ux = p[a, 0] - p[o, 0]
     uy = p[a, 1] - p[o, 1]
     uz = p[a, 2] - p[o, 2]
@@ -42,7 +42,7 @@ def _angle_one(j, p, w, tri, rest, alpha, lam, inv_h2):
     lu2 = ux * ux + uy * uy + uz * uz
     lv2 = vx * vx + vy * vy + vz * vz
     if lu2 < _LEN_EPS * _LEN_EPS or lv2 < _LEN_EPS * _LEN_EPS:
-        return
+        return 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     iu = 1.0 / math.sqrt(lu2)
     iv = 1.0 / math.sqrt(lv2)
     ux *= iu
@@ -56,14 +56,9 @@ def _angle_one(j, p, w, tri, rest, alpha, lam, inv_h2):
     cxy = uz * vx - ux * vz
     cxz = ux * vy - uy * vx
     sn = math.sqrt(cxx * cxx + cxy * cxy + cxz * cxz)
+    theta = math.atan2(sn, cs)
     if sn < _REL_EPS:
-        return  # collinear: the direction of the angle change is undefined
-    al = alpha[j]
-    if not al < _INF:
-        return
-    c = math.atan2(sn, cs) - rest[j]
-    # with unit u, v: d theta / d p_a = -(v - cs u) / (|e_a| sn), d theta / d p_b =
-    # -(u - cs v) / (|e_b| sn); |v - cs u| = |u - cs v| = sn
+        return 1, theta, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     ga = -iu / sn
     gb = -iv / sn
     gax = ga * (vx - cs * ux)
@@ -72,9 +67,26 @@ def _angle_one(j, p, w, tri, rest, alpha, lam, inv_h2):
     gbx = gb * (ux - cs * vx)
     gby = gb * (uy - cs * vy)
     gbz = gb * (uz - cs * vz)
-    gox = -gax - gbx
-    goy = -gay - gby
-    goz = -gaz - gbz
+    return 2, theta, gax, gay, gaz, gbx, gby, gbz, -gax - gbx, -gay - gby, -gaz - gbz
+
+
+@_hot
+def _angle_one(j, p, w, tri, rest, alpha, lam, inv_h2):
+    o = tri[j, 0]
+    a = tri[j, 1]
+    b = tri[j, 2]
+    wo = w[o]
+    wa = w[a]
+    wb = w[b]
+    if wo + wa + wb <= 0.0:
+        return
+    al = alpha[j]
+    if not al < _INF:
+        return
+    st, theta, gax, gay, gaz, gbx, gby, gbz, gox, goy, goz = _apex(p, o, a, b)
+    if st < 2:
+        return  # a short arm, or collinear: the direction of the angle change is undefined
+    c = theta - rest[j]
     den = (wa * (gax * gax + gay * gay + gaz * gaz) + wb * (gbx * gbx + gby * gby + gbz * gbz)
            + wo * (gox * gox + goy * goy + goz * goz))
     if den <= 0.0:
@@ -213,41 +225,16 @@ def angle_energy(x, tri, rest, alpha, mode, grad, hess):
         o = tri[j, 0]
         a = tri[j, 1]
         b = tri[j, 2]
-        ux = x[a, 0] - x[o, 0]
-        uy = x[a, 1] - x[o, 1]
-        uz = x[a, 2] - x[o, 2]
-        vx = x[b, 0] - x[o, 0]
-        vy = x[b, 1] - x[o, 1]
-        vz = x[b, 2] - x[o, 2]
-        lu = math.sqrt(ux * ux + uy * uy + uz * uz)
-        lv = math.sqrt(vx * vx + vy * vy + vz * vz)
-        if lu < _LEN_EPS or lv < _LEN_EPS:
+        st, theta, gax, gay, gaz, gbx, gby, gbz, gox, goy, goz = _apex(x, o, a, b)
+        if st == 0:
             continue
-        ux /= lu
-        uy /= lu
-        uz /= lu
-        vx /= lv
-        vy /= lv
-        vz /= lv
-        cs = ux * vx + uy * vy + uz * vz
-        cxx = uy * vz - uz * vy
-        cxy = uz * vx - ux * vz
-        cxz = ux * vy - uy * vx
-        sn = math.sqrt(cxx * cxx + cxy * cxy + cxz * cxz)
-        c = math.atan2(sn, cs) - rest[j]
+        c = theta - rest[j]
         E += 0.5 * k * c * c
-        if sn < _REL_EPS:
+        if st == 1:
             continue
-        ga = -1.0 / (lu * sn)
-        gb = -1.0 / (lv * sn)
-        g[1, 0] = ga * (vx - cs * ux)
-        g[1, 1] = ga * (vy - cs * uy)
-        g[1, 2] = ga * (vz - cs * uz)
-        g[2, 0] = gb * (ux - cs * vx)
-        g[2, 1] = gb * (uy - cs * vy)
-        g[2, 2] = gb * (uz - cs * vz)
-        for r in range(3):
-            g[0, r] = -g[1, r] - g[2, r]
+        g[0, 0], g[0, 1], g[0, 2] = gox, goy, goz
+        g[1, 0], g[1, 1], g[1, 2] = gax, gay, gaz
+        g[2, 0], g[2, 1], g[2, 2] = gbx, gby, gbz
         _scalar_term(j, tri, 3, g, k, c, k * c, mode, grad, hess)
     return E
 
