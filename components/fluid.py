@@ -42,7 +42,10 @@ class FluidDomain(Component):
     solids received goes into the fluid; a pressure projection and a semi-Lagrangian
     (or MacCormack) advection follow. ``uniform`` is the initial velocity. Solids in the box
     feel buoyancy ``-V grad p`` (V: the Drag element volume) when ``buoyancy`` is on. Static
-    ``ShapeCollider`` elements (plane, sphere, capsule) are obstacles the fluid flows around.
+    ``ShapeCollider`` elements (plane, sphere, capsule) are obstacles the fluid flows around;
+    so are moving kinematic meshes (a character): every closed triangle mesh of a
+    ``Kinematic`` element (or those named in ``obstacles``) is rasterized into solid face
+    fractions every substep and pushes the fluid with its own velocity.
     """
 
     origin: Vec3 = Field((0.0, 0.0, 0.0), description="Lower corner of the grid box [m].")
@@ -87,6 +90,10 @@ class FluidDomain(Component):
                                  description="Boundary at the box face z = origin.z.")
     z_max: FluidBoundary = Field(default_factory=FluidBoundary,
                                  description="Boundary at the box face z = origin.z + size.z.")
+    obstacles: list[str] | None = Field(
+        None, description="Simulated: kinematic elements that displace the fluid, moving with "
+        "their animation (closed triangle meshes, rasterized as solid face fractions every "
+        "substep); null = every Kinematic element with a closed triangle mesh; [] = none.")
     write_fields: bool = Field(False, description="Simulated: write velocity [m/s] and pressure "
                                "[Pa] per frame as VTK image data to fields_dir/NNNN.vti.")
     fields_dir: str | None = Field(None, description="Folder of the .vti files, relative to "

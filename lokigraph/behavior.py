@@ -161,6 +161,23 @@ def clear_bind_caches() -> None:
         clear()
 
 
+class SolverCoupling:
+    """A coupling that runs inside an implicit solver's nonlinear loop (the Avatar supplement's
+    Figure 2). A behavior whose bound data carries one as ``data.solver_coupling`` is found by
+    the implicit solver (through ``model.data``), which, per substep, calls ``begin`` once, then
+    after every solid solve ``iterate`` with the start positions ``x0``, the new iterate ``x``
+    and the inertial target ``xt`` (which a coupling force may move: ``xt += h^2 M^-1 df``),
+    and stops when ``iterate`` returns a change below its tolerance or after its most
+    iterations. ``iterate`` updates the solid's inputs in place (e.g. the air velocity that
+    drag pulls toward) and returns the largest change of them [m/s]."""
+
+    def begin(self, ctx) -> None:  # pragma: no cover - interface
+        raise NotImplementedError
+
+    def iterate(self, ctx, x0, x, xt) -> float:  # pragma: no cover - interface
+        raise NotImplementedError
+
+
 @dataclass
 class BindContext:
     """What ``bind`` sees: the model under construction and the scene."""

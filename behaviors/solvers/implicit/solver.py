@@ -154,6 +154,13 @@ class ImplicitParams(Params):
         "exact", description="Friction Hessian block: 'irls' mu lam f1(y)/y (I - n n^T), a "
         "quadratic majorizer (every full step lowers the friction energy); 'exact' IPC's PSD "
         "Hessian (zero curvature along a sliding direction).")
+    coupling_iterations: int = Field(
+        4, ge=1, le=100, description="Most solid solves per substep when a coupling runs inside "
+        "the solver (two-way fluid: Avatar supplement Figure 2, steps A-C repeated until the "
+        "fluid velocity at the vertices changes by less than coupling_tolerance) [-].")
+    coupling_tolerance: float = Field(
+        1e-3, gt=0, description="The coupling loop stops when the fluid velocity it feeds to "
+        "drag changes by less than this between two solid solves [m/s].")
     contact_tolerance: float = Field(1e-4, gt=0, lt=1, description="Newton does not stop while "
                                      "the lagged normal forces of the contacts change by more "
                                      "than this fraction of the largest one [-].")
@@ -179,6 +186,7 @@ class _ImplicitData:
     contact: dict = field(default_factory=dict)  # kc, lam, nrm, lam_prev, dummies
     mesh: bool = False  # contact rows of CollisionDetect in the Newton solve
     rows: dict = field(default_factory=dict)  # grow-only buffers and this substep's views
+    couplings: list = field(default_factory=list)  # SolverCoupling objects (model.data)
 
 
 class ImplicitSolver(Behavior):
@@ -242,6 +250,8 @@ class ImplicitSolver(Behavior):
                      else BlockJacobi(n))
         d.work = {k: np.zeros((n, 3)) for k in ("r", "z", "p", "g", "dx", "xt", "xs", "x0",
                                                "du", "Ap", "pp")}
+        d.couplings = [getattr(v, "solver_coupling", None) for v in ctx.model.data.values()]
+        d.couplings = [c for c in d.couplings if c is not None]
         d.mesh = (self.params.mesh_contact == "energy"
                   and any(type(b).__name__ == "CollisionConstraint" for b, _ in projected))
         if shapes:
@@ -338,12 +348,23 @@ class ImplicitSolver(Behavior):
         opts = EnergyOptions(2, P.hard_stiffness * m.particle_mass / (h * h), h,
                              np.zeros((1, 3)), np.zeros((1, 1, 1, 3, 3)))
         counts = {"newton": 0, "cg": 0, "halvings": 0, "cg_max": 0, "cg_res": 0.0,
-                  "step_v": 0.0}
+                  "step_v": 0.0, "coupling": 0}
         self._set_fixed(d, d.fixed)
         if d.shapes is not None:
             np.multiply(m.particle_mass, P.contact_stiffness / (h * h), out=d.contact["kc"])
         self._bind_rows(ctx, d)
-        if (d.energies or st.fields.get("drag_D") is not None or d.shapes is not None
+        if d.couplings:  # Figure 2 of the Avatar supplement: solid solve <-> fluid, repeated
+            for cp in d.couplings:
+                cp.begin(ctx)
+            for _ in range(P.coupling_iterations):
+                self._newton(ctx, d, xs, xt, opts, counts)
+                counts["coupling"] += 1
+                change = max(cp.iterate(ctx, x0, xs, xt) for cp in d.couplings)
+                if change < P.coupling_tolerance:
+                    break
+            ctx.stats["max_coupling_change"] = max(ctx.stats.get("max_coupling_change", 0.0),
+                                                   change)
+        elif (d.energies or st.fields.get("drag_D") is not None or d.shapes is not None
                 or d.rows.get("sets")):
             self._newton(ctx, d, xs, xt, opts, counts)
         p = xs
@@ -380,6 +401,10 @@ class ImplicitSolver(Behavior):
         s["max_cg_iterations"] = max(s.get("max_cg_iterations", 0), c["cg_max"])
         s["max_newton_step"] = max(s.get("max_newton_step", 0.0), c["step_v"])
         s["max_cg_residual"] = max(s.get("max_cg_residual", 0.0), c["cg_res"])
+        if c["coupling"]:
+            s["coupling_iterations"] = s.get("coupling_iterations", 0) + c["coupling"]
+            s["max_coupling_iterations"] = max(s.get("max_coupling_iterations", 0),
+                                               c["coupling"])
 
     def _bind_rows(self, ctx, d):
         """This substep's contact rows (CollisionDetect's packed sets) as views of grow-only
