@@ -128,15 +128,15 @@ def test_porous_sheet_in_a_duct_gives_the_ergun_pressure_drop(scene_file, U, xi_
 
 FALL = """
 lokigraph: 1
-frames: {start: 1, end: 30, fps: 24}
+frames: {start: 1, end: 36, fps: 24}
 substeps: 2
 elements:
   - name: patch
     geometry: {generator: grid, params: {size: [0.3, 0.3], resolution: [8, 8], plane: xz,
-                                         center: [0.5, 1.7, 0.5]}}
+                                         center: [0.5, 2.7, 0.5]}}
     components:
       Dynamic: {mass_density: 0.05}
-      DiscreteShell: {}
+      DiscreteShell: {bend_resistance: 1.0e-2}   # stiff: it falls flat
       Drag: {model: anisotropic, normal: 0.5, tangent: 0.05}
   - name: air
     components:
@@ -147,24 +147,31 @@ elements:
 def test_falling_patch_drags_the_air_along(scene_file):
     """Still air: one way (an unmoving prescribed field) the patch reaches the terminal velocity
     m g / c_n; two way the air under it is pushed down with it, the relative velocity is smaller
-    and the patch falls faster than that terminal velocity."""
-    one = FALL.replace("FLUID", "{uniform: [0, 0, 0], origin: [0, 0, 0], size: [1, 2, 1]}")
-    two = FALL.replace("FLUID", "{simulate: true, origin: [0, 0, 0], size: [1, 2, 1], "
-                                "cell_size: 0.0625}")
+    and the patch reaches a faster terminal velocity (measured -1.119 m/s at 1 s, -1.125 at
+    1.5 s against -0.981 one way: the induced velocity of actuator-disk theory,
+    T / (2 rho A V) = 0.2 m/s, is of that size). The patch is stiff: a limp one cups in its
+    own wake, tilts and falls edge-on."""
+    one = FALL.replace("FLUID", "{uniform: [0, 0, 0], origin: [0, 0, 0], size: [1, 3, 1]}")
+    two = FALL.replace("FLUID", "{simulate: true, origin: [0, 0, 0], size: [1, 3, 1], "
+                                "cell_size: 0.0625, y_min: {type: open}, y_max: {type: open}}")
     vy = {}
     for name, text in (("one", one), ("two", two)):
         sim = Simulation(compile_file(scene_file(text, name + ".yaml")))
-        for _ in range(20):
+        v = []
+        for _ in range(36):
             sim.step_frame()
-        vy[name] = float(sim.state.particle_qd[:, 1].mean())
+            v.append(float(sim.state.particle_qd[:, 1].mean()))
+        vy[name] = v
         if name == "two":
             g = _two_way(sim).grid
             y = float(sim.state.particle_q[:, 1].mean())
             j = int(y / g.h[1])
             below = g.v[6:10, j - 3:j, 6:10].mean()  # faces under the patch
     v_terminal = -0.05 * 9.81 / 0.5
-    assert vy["one"] == pytest.approx(v_terminal, rel=0.01)
-    assert vy["two"] < 1.05 * v_terminal  # faster than one way (both negative)
+    assert vy["one"][-1] == pytest.approx(v_terminal, rel=0.01)
+    two = vy["two"]
+    assert two[-1] == pytest.approx(two[23], rel=0.01)  # terminal: steady from 1 s to 1.5 s
+    assert two[-1] < 1.05 * v_terminal  # faster than one way (both negative)
     assert below < -0.02  # the air below moves down [m/s]
 
 
