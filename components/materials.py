@@ -8,6 +8,7 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from lokigraph.component import Component, Paintable, VertexIndex
+from lokigraph.keys import KeyedFloat
 from lokigraph.selection import IndicesOrSelection, resolve_selection
 
 
@@ -47,12 +48,15 @@ class DiscreteShell(Component):
 
 
 class Rod(Component):
-    """Hair material on 1-simplices: stretch and bend.
+    """Hair material on 1-simplices: stretch, bend and twist.
 
     Stretch: axial spring E pi r^2 / L; bend at an interior vertex: EI / l_avg with
     I = pi r^4 / 4 unless ``bend_resistance`` gives EI directly. Solved per strand directly
     (``solve: direct``, :mod:`lokigraph.behaviors.materials.rod`) or by Gauss-Seidel curve
-    type-2 angle constraints.
+    type-2 angle constraints. Twist (``solve: direct`` only): every segment carries a material
+    frame, a reference direction parallel-transported in time plus a twist angle with its own
+    rotational inertia (m r^2 / 2 per segment, a solid circular fibre), twist stiffness GJ
+    between adjacent segments; the twist follows the centre line but does not push back on it.
     """
 
     needs: ClassVar[tuple[str, ...]] = ("Dynamic",)
@@ -83,6 +87,24 @@ class Rod(Component):
         "4 substeps x 15 iterations: elastica bench (q L^3/EI = 3) error 0.36 % of L direct, "
         "101 % Gauss-Seidel; hair_strands max segment strain 0.000 % direct, 10 % Gauss-Seidel "
         "(graphs/bench/rod_direct.py).")
+    twist_resistance: float | None = Field(
+        None, ge=0, description="Twist stiffness GJ [N m^2] of the material frame (solve "
+        "'direct' only); null = EI / (1 + poisson_ratio), i.e. G J with G = E / (2 (1 + nu)), "
+        "J = pi r^4 / 2 (from bend_resistance when given, else from E and r; 1e-9 / (1 + nu) "
+        "if inextensible without bend_resistance); 0 = no twist (no material frame). The twist "
+        "does not act on the positions (one-way: the frame follows the centre line), so it "
+        "never changes them.")
+    poisson_ratio: float = Field(0.3, ge=0.0, lt=0.5, description="Poisson ratio nu [-] of the "
+                                 "fibre, for the default twist_resistance (G = E / (2 (1 + "
+                                 "nu))).")
+    root_twist: KeyedFloat = Field(0.0, description="Twist angle [rad] of the material frame at "
+                                   "a pinned root vertex, about the root segment, relative to "
+                                   "its reference frame (the rest frame carried by parallel "
+                                   "transport): the follicle holds the strand's twist there; a "
+                                   "root carried by a body (Pins.follow) also turns with the "
+                                   "body's spin about the root segment. Keyable (evaluated at "
+                                   "the end of each substep, like the pose of a kinematic "
+                                   "vertex).")
 
     @model_validator(mode="after")
     def _auto_tethers(self):

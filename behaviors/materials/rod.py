@@ -62,6 +62,45 @@ substeps) 3 steps per substep (importance 0.2) let segments stretch 8x transient
 held 0.01 %, 8 (0.5) and 15 (1.0, the default) 0.000 %. A strand whose right-hand sides are
 all below ``CONVERGED`` skips its solve, so the default's extra steps cost little once the
 strands have converged (hair_strands: 12.5 ms/frame CPU at importance 1.0, 9.9 at 0.5).
+
+Twist (``Rod.twist_resistance``; Bergou, Wardetzky, Robinson, Audoly, Grinspun, "Discrete
+Elastic Rods", SIGGRAPH 2008): every segment carries a reference director d1 (unit, normal to
+its tangent t) and a twist angle theta with rate omega; the material frame is
+``m1 = cos(theta) d1 + sin(theta) t x d1``, ``m2 = t x m1`` (:func:`material_frames`). Once per
+substep, after the position iterations (``after_finalize``, :func:`twist_step`):
+
+1. each d1 is carried to its segment's new tangent by time-parallel transport (the rotation
+   taking the old tangent to the new one), so d1 never spins about t;
+2. the reference twist at interior vertex k, the angle about t_k from d1_{k-1} transported along
+   the strand onto t_k to d1_k, is updated continuously (no 2 pi jumps);
+3. theta~ = theta + h omega (omega damped by ``Dynamic.damping`` like the vertices), then XPBD on
+   the twist rows ``C_k = theta_k - theta_{k-1} + reft_k`` (rest twist 0: the frames start as
+   the twist-free Bishop frame of the initial shape, :func:`bishop_frames`), compliance
+   ``l_k / GJ`` (l_k the distance between the segment centres), inverse inertia per segment
+   ``1 / (rho J l) = 2 / (m r^2)`` (a solid circular fibre, m the segment's mass); a pinned or
+   followed root vertex adds the row ``C_0 = theta_0 - Rod.root_twist`` over half the first
+   segment, and a root carried by a body (``Pins.follow``) adds the body's spin to that angle:
+   its initial reference director is stored in the frame of the carrying triangle at bind, and
+   the angle about t_0 from d1_0 to that body-fixed director is followed continuously
+   (``bphi``). The rows form a chain, linear in theta: (J W J^T + alpha~) dlam = -C is tridiagonal
+   and one Thomas solve per strand (O(n), strands in ``prange`` like the position solve) gives
+   the exact XPBD answer, what projecting in every iteration would converge to;
+4. omega = (theta_new - theta) / h.
+
+The coupling is one-way: the frame follows the centre line (through the transport and the
+reference twist), but the twist energy does not push back on the positions (its gradient
+through the reference twist, what makes a twisted rod buckle into plectonemes, is left out), and
+the bending is isotropic, so positions are bit-identical with twist on or off (a straight strand
+decouples exactly anyway). Measured (tests/test_rod_twist.py, graphs/bench/rod_twist.py): a
+straight strand turned at its root oscillates at its tip with the fixed-free shaft period
+4 L / c, c = sqrt(GJ / (rho J)), to 0.05 % at the default 4 substeps (2.2 % at one substep: the
+implicit stepping stretches a period by atan(omega h) / (omega h)); a tangent swept once around
+a cone of half angle a leaves the reference twist at the solid angle 2 pi (1 - cos a) to
+3e-7; a strand on the axis of a ball turned by 45 degrees ends twisted uniformly by it (0.1 %).
+The twist step costs about 70 ns per segment and substep (3-4 % of hair_strands and
+hair_head_gusts). Only Nucleus advances the twist (the implicit solver takes the Rod as
+energies and does not call this type's ``after_finalize``: there the frames stay as bound);
+curves on Gauss-Seidel (``solve: gauss_seidel``, branched curves) have no material frame.
 """
 
 from __future__ import annotations
@@ -466,6 +505,242 @@ def rod_values(p, verts, vptr, rptr, kind, rest):
 
 
 # ==============================================================================================
+# Twist: a material frame per segment (Bergou et al. 2008, "Discrete Elastic Rods")
+# ==============================================================================================
+@_hot
+def _wrap(x):
+    """x wrapped to [-pi, pi]."""
+    return x - 2.0 * math.pi * math.floor(x / (2.0 * math.pi) + 0.5)
+
+
+@_hot
+def _transport(ux, uy, uz, ax, ay, az, bx, by, bz):
+    """Parallel transport of u from unit tangent a to unit tangent b: the rotation about a x b
+    taking a to b (Rodrigues, R u = c u + k x u + k (k . u) / (1 + c), k = a x b, c = a . b),
+    then made normal to b. Antiparallel tangents (no unique rotation): u projected on b's normal
+    plane."""
+    kx = ay * bz - az * by
+    ky = az * bx - ax * bz
+    kz = ax * by - ay * bx
+    c = ax * bx + ay * by + az * bz
+    if c > -1.0 + 1e-12:
+        f = (kx * ux + ky * uy + kz * uz) / (1.0 + c)
+        rx = c * ux + (ky * uz - kz * uy) + f * kx
+        ry = c * uy + (kz * ux - kx * uz) + f * ky
+        rz = c * uz + (kx * uy - ky * ux) + f * kz
+    else:
+        rx, ry, rz = ux, uy, uz
+    d = rx * bx + ry * by + rz * bz
+    return rx - d * bx, ry - d * by, rz - d * bz
+
+
+@_hot
+def _any_normal(bx, by, bz):
+    """A unit vector normal to unit b (across its smallest component)."""
+    if abs(bx) <= abs(by) and abs(bx) <= abs(bz):
+        x, y, z = 1.0 - bx * bx, -bx * by, -bx * bz
+    elif abs(by) <= abs(bz):
+        x, y, z = -by * bx, 1.0 - by * by, -by * bz
+    else:
+        x, y, z = -bz * bx, -bz * by, 1.0 - bz * bz
+    n = math.sqrt(x * x + y * y + z * z)
+    return x / n, y / n, z / n
+
+
+@_hot
+def _twist_row_on(k, g0, v0, verts, w, alpha):
+    """Row k of a strand's twist chain is active: row 0 (the root) when the root vertex is
+    pinned or kinematic (w = 0), the others when their compliance is finite."""
+    if k == 0:
+        return w[verts[v0]] <= 0.0 and alpha[g0] < _INF
+    return alpha[g0 + k] < _INF
+
+
+@_hot
+def _twist_strand(s, p, w, verts, vptr, d1, tan, theta, omega, winv, reft, alpha, root, bdir,
+                  bphi, damp, tp, cp, dl, h):
+    """One substep of the twist of strand s (``twist_step`` has the arguments): frames carried
+    to the new tangents, reference twists updated, theta predicted and its chain of twist
+    constraints solved exactly (Thomas algorithm), omega from the change of theta."""
+    v0 = vptr[s]
+    n = vptr[s + 1] - v0 - 1
+    g0 = v0 - s
+    # 1. time-parallel transport of every reference director to its segment's new tangent
+    for k in range(n):
+        g = g0 + k
+        a = verts[v0 + k]
+        b = verts[v0 + k + 1]
+        ex = p[b, 0] - p[a, 0]
+        ey = p[b, 1] - p[a, 1]
+        ez = p[b, 2] - p[a, 2]
+        ln = math.sqrt(ex * ex + ey * ey + ez * ez)
+        if ln < _LEN_EPS:
+            continue  # no tangent: the frame stays
+        ex /= ln
+        ey /= ln
+        ez /= ln
+        ux, uy, uz = _transport(d1[g, 0], d1[g, 1], d1[g, 2], tan[g, 0], tan[g, 1], tan[g, 2],
+                                ex, ey, ez)
+        nu = math.sqrt(ux * ux + uy * uy + uz * uz)
+        if nu > 1e-6:
+            ux /= nu
+            uy /= nu
+            uz /= nu
+        else:
+            ux, uy, uz = _any_normal(ex, ey, ez)
+        d1[g, 0] = ux
+        d1[g, 1] = uy
+        d1[g, 2] = uz
+        tan[g, 0] = ex
+        tan[g, 1] = ey
+        tan[g, 2] = ez
+    # 2. reference twist at interior vertex k: the angle about t_k from d1_{k-1} transported
+    # along the strand onto t_k to d1_k, continued from its last value (no 2 pi jumps)
+    for k in range(1, n):
+        g = g0 + k
+        ux, uy, uz = _transport(d1[g - 1, 0], d1[g - 1, 1], d1[g - 1, 2], tan[g - 1, 0],
+                                tan[g - 1, 1], tan[g - 1, 2], tan[g, 0], tan[g, 1], tan[g, 2])
+        cx = uy * d1[g, 2] - uz * d1[g, 1]
+        cy = uz * d1[g, 0] - ux * d1[g, 2]
+        cz = ux * d1[g, 1] - uy * d1[g, 0]
+        sn = cx * tan[g, 0] + cy * tan[g, 1] + cz * tan[g, 2]
+        cs = ux * d1[g, 0] + uy * d1[g, 1] + uz * d1[g, 2]
+        reft[g] += _wrap(math.atan2(sn, cs) - reft[g])
+    # a root carried by a body: its spin about the root tangent, the angle about t_0 from d1_0
+    # to the body-fixed director bdir (made normal to t_0), continued from its last value
+    bx, by, bz = bdir[s, 0], bdir[s, 1], bdir[s, 2]
+    if bx != 0.0 or by != 0.0 or bz != 0.0:
+        tx, ty, tz = tan[g0, 0], tan[g0, 1], tan[g0, 2]
+        dd = bx * tx + by * ty + bz * tz
+        bx -= dd * tx
+        by -= dd * ty
+        bz -= dd * tz
+        if bx * bx + by * by + bz * bz > 1e-12:  # else along the tangent: the angle stays
+            cx = d1[g0, 1] * bz - d1[g0, 2] * by
+            cy = d1[g0, 2] * bx - d1[g0, 0] * bz
+            cz = d1[g0, 0] * by - d1[g0, 1] * bx
+            sn = cx * tx + cy * ty + cz * tz
+            cs = d1[g0, 0] * bx + d1[g0, 1] * by + d1[g0, 2] * bz
+            bphi[s] += _wrap(math.atan2(sn, cs) - bphi[s])
+    # 3. predict theta~ = theta + h omega (omega damped like the vertices: exp(-damping h))
+    for k in range(n):
+        g = g0 + k
+        if damp[g] > 0.0:
+            omega[g] *= math.exp(-damp[g] * h)
+        tp[g] = theta[g] + h * omega[g]
+    # 4. XPBD on the chain of twist rows, exact (the rows are linear in theta, so one solve
+    # from lam = 0 leaves every right-hand side -C - alpha~ lam at zero): row k couples
+    # theta_{k-1} (-1) and theta_k (+1), C_k = theta_k - theta_{k-1} + reft_k (the rest is
+    # twist-free); row 0 is C_0 = theta_0 - root angle. (J W J^T + alpha~) dlam = -C is
+    # tridiagonal: diagonal W_{k-1} + W_k + alpha~_k (W_{-1} = 0), off-diagonal -W_k between
+    # rows k and k + 1 (0 when either is off). Thomas: forward sweep (cp, dl), back substitution.
+    inv_h2 = 1.0 / (h * h)
+    pc = 0.0
+    pd = 0.0
+    on_prev = False
+    on_k = _twist_row_on(0, g0, v0, verts, w, alpha)
+    for k in range(n):
+        g = g0 + k
+        on_n = _twist_row_on(k + 1, g0, v0, verts, w, alpha) if k + 1 < n else False
+        wl = winv[g - 1] if k > 0 else 0.0
+        diag = wl + winv[g] + alpha[g] * inv_h2
+        if on_k and diag > 0.0:
+            c = tp[g] - (tp[g - 1] - reft[g] if k > 0 else root[s] + bphi[s])
+            lower = -wl if on_prev else 0.0
+            upper = -winv[g] if on_n else 0.0
+            den = diag - lower * pc
+            cp[g] = upper / den
+            dl[g] = (-c - lower * pd) / den
+        else:
+            cp[g] = 0.0
+            dl[g] = 0.0
+        pc = cp[g]
+        pd = dl[g]
+        on_prev = on_k and diag > 0.0
+        on_k = on_n
+    for k in range(n - 2, -1, -1):
+        g = g0 + k
+        dl[g] -= cp[g] * dl[g + 1]
+    # theta += W J^T dlam (theta_k is + in row k and - in row k + 1); omega = dtheta / h
+    ih = 1.0 / h
+    for k in range(n):
+        g = g0 + k
+        nxt = dl[g + 1] if k + 1 < n else 0.0
+        th = tp[g] + winv[g] * (dl[g] - nxt)
+        omega[g] = (th - theta[g]) * ih
+        theta[g] = th
+
+
+@njit(cache=True, parallel=True)
+def twist_step(p, w, verts, vptr, on, d1, tan, theta, omega, winv, reft, alpha, root, bdir, bphi,
+               damp, tp, cp, dl, h):
+    """One substep of the twist of every strand (strands in parallel), after the positions p
+    [m] (n, 3) of the substep are final; w inverse masses [1/kg] (n,). Per segment (segments of
+    strand s start at ``vptr[s] - s``): d1 reference director (unit, normal to the tangent), tan
+    unit tangent it was last carried to, theta twist angle [rad] of the material frame from d1
+    about tan, omega its rate [rad/s], winv inverse rotational inertia [1/(kg m^2)], alpha
+    compliance [1/(N m)] of the twist row at the segment's first vertex (row 0 of a strand: the
+    root; inf = off), reft reference twist [rad] at that vertex, damp rate [1/s]; root (S,) root
+    angle [rad]; bdir (S, 3) a body-fixed director of a root carried by a body (zeros: none)
+    and bphi (S,) that body's spin about the root tangent [rad] (continued, added to root);
+    on (S,) strands with twist. tp, cp, dl (segments,) workspace; h substep [s]."""
+    for s in prange(vptr.shape[0] - 1):
+        if on[s]:
+            _twist_strand(s, p, w, verts, vptr, d1, tan, theta, omega, winv, reft, alpha, root,
+                          bdir, bphi, damp, tp, cp, dl, h)
+
+
+@njit(cache=True)
+def twist_step_seq(p, w, verts, vptr, on, d1, tan, theta, omega, winv, reft, alpha, root, bdir,
+                   bphi, damp, tp, cp, dl, h):
+    """Sequential variant of ``twist_step`` (same arguments)."""
+    for s in range(vptr.shape[0] - 1):
+        if on[s]:
+            _twist_strand(s, p, w, verts, vptr, d1, tan, theta, omega, winv, reft, alpha, root,
+                          bdir, bphi, damp, tp, cp, dl, h)
+
+
+@njit(cache=True)
+def bishop_frames(p, verts, vptr, d1, tan):
+    """Twist-free frames of every strand at positions p: unit tangents, and reference directors
+    carried along the strand by space-parallel transport from a normal of the first tangent (a
+    zero-length segment takes the tangent before it). Its reference twists are zero."""
+    for s in range(vptr.shape[0] - 1):
+        v0 = vptr[s]
+        n = vptr[s + 1] - v0 - 1
+        g0 = v0 - s
+        px, py, pz = 0.0, 0.0, 1.0
+        for k in range(n):
+            a = verts[v0 + k]
+            b = verts[v0 + k + 1]
+            ex = p[b, 0] - p[a, 0]
+            ey = p[b, 1] - p[a, 1]
+            ez = p[b, 2] - p[a, 2]
+            ln = math.sqrt(ex * ex + ey * ey + ez * ez)
+            if ln >= _LEN_EPS:
+                px, py, pz = ex / ln, ey / ln, ez / ln
+            g = g0 + k
+            tan[g, 0] = px
+            tan[g, 1] = py
+            tan[g, 2] = pz
+            if k == 0:
+                ux, uy, uz = _any_normal(px, py, pz)
+            else:
+                ux, uy, uz = _transport(d1[g - 1, 0], d1[g - 1, 1], d1[g - 1, 2], tan[g - 1, 0],
+                                        tan[g - 1, 1], tan[g - 1, 2], px, py, pz)
+                nu = math.sqrt(ux * ux + uy * uy + uz * uz)
+                if nu > 1e-6:
+                    ux /= nu
+                    uy /= nu
+                    uz /= nu
+                else:
+                    ux, uy, uz = _any_normal(px, py, pz)
+            d1[g, 0] = ux
+            d1[g, 1] = uy
+            d1[g, 2] = uz
+
+
+# ==============================================================================================
 # Packing and the Nucleus constraint behavior
 # ==============================================================================================
 def strand_chains(e) -> list[np.ndarray] | None:
@@ -503,6 +778,44 @@ def rod_bend_stiffness(c) -> float:
     return float(EI)
 
 
+def rod_twist_stiffness(c) -> float:
+    """GJ [N m^2] of a Rod: ``twist_resistance``, else EI / (1 + nu) (G = E / (2 (1 + nu)),
+    J = pi r^4 / 2 = 2 I); 0 = no twist."""
+    GJ = c.twist_resistance
+    if GJ is None:
+        GJ = rod_bend_stiffness(c) / (1.0 + c.poisson_ratio)
+    return float(GJ)
+
+
+@dataclass
+class TwistData:
+    """The material frames of the strands of a :class:`RodData` (segment g of strand s is
+    ``vptr[s] - s + k``; see ``twist_step``)."""
+
+    on: np.ndarray  # (S,) bool: strand has twist
+    d1: np.ndarray  # (M, 3) reference director (unit, normal to tan)
+    tan: np.ndarray  # (M, 3) unit tangent d1 was last carried to
+    theta: np.ndarray  # (M,) twist angle [rad] of the material frame from d1 about tan
+    omega: np.ndarray  # (M,) its rate [rad/s]
+    winv: np.ndarray  # (M,) inverse rotational inertia [1/(kg m^2)]
+    reft: np.ndarray  # (M,) reference twist [rad] at the segment's first vertex
+    alpha: np.ndarray  # (M,) twist compliance [1/(N m)] of that vertex's row (row 0: root)
+    root: np.ndarray  # (S,) root angle [rad]
+    damp: np.ndarray  # (M,) angular velocity damping rate [1/s]
+    keyed_damp: list  # [(segment slice, Keyed)]
+    keyed_root: list  # [(strand slice, Keyed)]
+    tp: np.ndarray  # (M,) workspace
+    cp: np.ndarray  # (M,) workspace
+    dl: np.ndarray  # (M,) workspace
+    bdir: np.ndarray  # (S, 3) body-fixed director at a carried root (zeros: not carried)
+    bphi: np.ndarray  # (S,) the carrying body's spin about the root tangent [rad], continued
+    #: roots carried by a body (Pins.follow): strand indices (F,), global vertices of the
+    #: carrying triangle (F, 3), and the root director in that triangle's frame (F, 3)
+    fstrand: np.ndarray | None = None
+    ftri: np.ndarray | None = None
+    fcoef: np.ndarray | None = None
+
+
 @dataclass
 class RodData:
     verts: np.ndarray  # (V,) global vertex indices, strands back to back in chain order
@@ -523,6 +836,8 @@ class RodData:
     #: stretch rows as (m, 2) global vertex pairs and rest lengths [m] (for strain reports)
     idx: np.ndarray
     rest_len: np.ndarray
+    #: material frames (None when no strand has twist)
+    twist: TwistData | None = None
 
     def __len__(self):
         return len(self.rest)
@@ -605,12 +920,14 @@ class RodConstraint(ConstraintBehavior):
         srow = np.concatenate([np.arange(rp[s], rp[s + 1], 3) for s in range(len(rp) - 1)])
         spair = np.concatenate([np.stack([vv[vp[s]:vp[s + 1] - 1], vv[vp[s] + 1:vp[s + 1]]], 1)
                                 for s in range(len(vp) - 1)])
-        return RodData(vv, vp, rp, np.ascontiguousarray(np.concatenate(kind)), rs,
-                       np.ascontiguousarray(np.concatenate(alpha)),
-                       np.ascontiguousarray(np.concatenate(alpha2)), np.zeros(R),
-                       np.zeros((R, 3)), *strand_workspace(R),
-                       len(vp) > 2 and len(spair) >= PARALLEL_MIN_CONSTRAINTS,
-                       np.ascontiguousarray(spair), np.ascontiguousarray(rs[srow]))
+        d = RodData(vv, vp, rp, np.ascontiguousarray(np.concatenate(kind)), rs,
+                    np.ascontiguousarray(np.concatenate(alpha)),
+                    np.ascontiguousarray(np.concatenate(alpha2)), np.zeros(R),
+                    np.zeros((R, 3)), *strand_workspace(R),
+                    len(vp) > 2 and len(spair) >= PARALLEL_MIN_CONSTRAINTS,
+                    np.ascontiguousarray(spair), np.ascontiguousarray(rs[srow]))
+        d.twist = _bind_twist(ctx, elements, d)
+        return d
 
     def project(self, ctx, d, p):
         fn = project_rods if d.parallel else project_rods_seq
@@ -620,6 +937,33 @@ class RodConstraint(ConstraintBehavior):
     def begin_substep(self, ctx, d):
         d.lam[:] = 0.0
         d.lamv[:] = 0.0
+
+    def after_finalize(self, ctx, d, p):
+        """The twist of the substep, on its final positions (``twist_step``). Once per substep,
+        not in every projection: no other constraint acts on theta and the twist does not act
+        on the positions, so a linear chain solved exactly once gives what every iteration
+        would."""
+        t = d.twist if d is not None else None
+        if t is None:
+            return
+        if t.keyed_damp or t.keyed_root:
+            from lokigraph.keys import step_frame
+
+            f = step_frame(ctx)
+            for sl, key in t.keyed_damp:
+                t.damp[sl] = key.evaluate(f)
+            f_end = f + 1.0 / int(ctx.model.substeps)  # the root's pose at the substep's end
+            for sl, key in t.keyed_root:
+                t.root[sl] = key.evaluate(f_end)
+        if t.fstrand is not None:  # carried roots: the body's director at the substep's end
+            from ..attachments.pins import triangle_frames
+
+            e1, e2, nrm = triangle_frames(p[t.ftri])
+            t.bdir[t.fstrand] = (t.fcoef[:, :1] * e1 + t.fcoef[:, 1:2] * e2
+                                 + t.fcoef[:, 2:] * nrm)
+        fn = twist_step if d.parallel else twist_step_seq
+        fn(p, ctx.model.particle_inv_mass, d.verts, d.vptr, t.on, t.d1, t.tan, t.theta, t.omega,
+           t.winv, t.reft, t.alpha, t.root, t.bdir, t.bphi, t.damp, t.tp, t.cp, t.dl, ctx.dt)
 
     # the final collision rounds (CollisionConstraint.finalize and its CCD safe step) solve the
     # strands together with the contacts, so the contacts do not have the last word alone
@@ -644,8 +988,136 @@ class RodConstraint(ConstraintBehavior):
     def describe(self, d):
         if d is None:
             return ""
+        tw = "" if d.twist is None else f", twist on {int(d.twist.on.sum())} strands"
         return (f"{len(d.vptr) - 1} strands, {len(d.idx)} segments, direct "
-                f"{'parallel' if d.parallel else 'sequential'}")
+                f"{'parallel' if d.parallel else 'sequential'}{tw}")
+
+
+def _bind_twist(ctx, elements, d) -> TwistData | None:
+    """Pack the material frames of the strands of ``d`` (bound from ``elements`` in the same
+    order as ``RodConstraint.bind``): twist compliance per row, rotational inertia per segment
+    (a solid circular fibre: rho J l = m r^2 / 2, m the segment's mass, lumped from the vertex
+    masses: each vertex gives its mass divided by its number of segments), damping and root
+    angle per element, frames twist-free (Bishop) on the initial positions."""
+    from lokigraph.keys import Keyed
+
+    S = len(d.vptr) - 1
+    M = len(d.verts) - S
+    on = np.zeros(S, bool)
+    winv = np.zeros(M)
+    alpha = np.full(M, np.inf)
+    root = np.zeros(S)
+    damp = np.zeros(M)
+    keyed_damp, keyed_root = [], []
+    mass = ctx.model.particle_mass
+    follow = []  # (strand, global root vertex, body element)
+    s = 0
+    for e in elements:
+        if not solved_directly(e):
+            continue
+        c = e.get(Rod)
+        X = _rest(ctx, e, c)
+        GJ = rod_twist_stiffness(c)
+        dmp = e.get(Dynamic).damping
+        body, pinned = _follow_body_of(ctx, e)
+        s_first = s
+        for chain in strand_chains(e):
+            if len(chain) < 2:
+                continue
+            if body is not None and GJ > 0 and pinned[chain[0]]:
+                follow.append((s, int(chain[0]) + e.vertex_offset, body))
+            g0 = int(d.vptr[s]) - s
+            m = len(chain) - 1
+            sl = slice(g0, g0 + m)
+            if GJ > 0:
+                on[s] = True
+                L = np.linalg.norm(X[chain[1:]] - X[chain[:-1]], axis=1) * c.rest_length_scale
+                # row 0 spans the root to the first segment's centre, row k the centres of
+                # segments k - 1 and k
+                sp = np.concatenate([[0.5 * L[0]], 0.5 * (L[:-1] + L[1:])])
+                alpha[sl] = sp / GJ
+            deg = np.full(m + 1, 2.0)
+            deg[0] = deg[-1] = 1.0
+            mv = mass[chain + e.vertex_offset] / deg
+            inertia = 0.5 * c.radius ** 2 * (mv[:-1] + mv[1:])
+            winv[sl] = np.where(inertia > 0, 1.0 / np.where(inertia > 0, inertia, 1.0), 0.0)
+            if isinstance(dmp, Keyed):
+                keyed_damp.append((sl, dmp))
+            else:
+                damp[sl] = float(dmp)
+            s += 1
+        if isinstance(c.root_twist, Keyed):
+            keyed_root.append((slice(s_first, s), c.root_twist))
+        else:
+            root[s_first:s] = float(c.root_twist)
+    if not on.any():
+        return None
+    d1, tan = np.zeros((M, 3)), np.zeros((M, 3))
+    q0 = np.ascontiguousarray(ctx.model.particle_q0, np.float64)
+    bishop_frames(q0, d.verts, d.vptr, d1, tan)
+    t = TwistData(on, d1, tan, np.zeros(M), np.zeros(M), winv, np.zeros(M), alpha, root, damp,
+                  keyed_damp, keyed_root, np.zeros(M), np.zeros(M), np.zeros(M),
+                  np.zeros((S, 3)), np.zeros(S))
+    _bind_follow_roots(t, follow, q0, d.vptr)
+    return t
+
+
+def _follow_body_of(ctx, e):
+    """(body element, pinned mask) of an element whose pins follow a kinematic body
+    (``Pins.follow``), else (None, None); problems are reported by the pins behaviors."""
+    from lokigraph.components.core import Kinematic, Pins
+    from lokigraph.errors import InputError
+
+    pins = e.get(Pins)
+    if pins is None or pins.follow is None:
+        return None, None
+    try:
+        body = ctx.scene.element(pins.follow)
+        pinned = np.asarray(pins.pinned(e), bool)
+    except (KeyError, InputError):
+        return None, None
+    if (body is e or not body.has(Kinematic) or body.geometry is None
+            or not len(body.geometry.triangles)):
+        return None, None
+    return body, pinned
+
+
+def _bind_follow_roots(t, follow, q0, vptr):
+    """Carried roots take their twist from their body: each is bound to the closest triangle of
+    the body (as ``Pins.follow`` binds it), and its initial reference director is stored in
+    that triangle's frame (e1 along its first edge, n its normal), so that it turns with the
+    body; the body's spin about the root tangent is then added to the root angle."""
+    if not follow:
+        return
+    from ..attachments.pins import bind_follow, triangle_frames
+
+    strands, tris = [], []
+    for body in {id(b): b for _, _, b in follow}.values():
+        sel = [(s, v) for s, v, b in follow if b is body]
+        idx = np.array([v for _, v in sel], np.int64)
+        tri, _, _, framed = bind_follow(q0[idx], q0[body.vertex_slice], body.geometry.triangles,
+                                        body.vertex_offset)
+        strands += [s for (s, _), f in zip(sel, framed) if f]
+        tris.append(tri[framed])
+    if not strands:
+        return
+    t.fstrand = np.asarray(strands, np.int64)
+    t.ftri = np.ascontiguousarray(np.concatenate(tris), dtype=np.int64)
+    e1, e2, nrm = triangle_frames(q0[t.ftri])
+    d0 = t.d1[vptr[t.fstrand] - t.fstrand]
+    t.fcoef = np.stack([np.einsum("ij,ij->i", d0, x) for x in (e1, e2, nrm)], axis=1)
+
+
+def material_frames(d):
+    """Unit tangent t, material directors m1 = cos(theta) d1 + sin(theta) t x d1 and m2 = t x m1
+    per segment (each (M, 3), segments of strand s from ``vptr[s] - s``), as of the last
+    substep; None without twist."""
+    t = d.twist if d is not None else None
+    if t is None:
+        return None
+    d2 = np.cross(t.tan, t.d1)
+    m1 = np.cos(t.theta)[:, None] * t.d1 + np.sin(t.theta)[:, None] * d2
+    return t.tan.copy(), m1, np.cross(t.tan, m1)
 
 
 
@@ -736,14 +1208,29 @@ RodConstraint.energy_update_multipliers = _rod_update_multipliers
 RodConstraint.energy_multipliers = _rod_multipliers
 
 
+#: checkpointed arrays of the material frames (TwistData attribute names)
+_TWIST_STATE = ("theta", "omega", "d1", "tan", "reft", "damp", "root", "bphi")
+
+
 def _rod_state_arrays(self, d):
-    """Checkpointed run state: the implicit solver's multipliers of the hard stretch rows."""
-    return {"implicit_lam": _rod_multipliers(self, d)} if d is not None else {}
+    """Checkpointed run state: the implicit solver's multipliers of the hard stretch rows, and
+    the material frames (twist angle and rate, reference director and its tangent, reference
+    twist; the keyed damping and root angle as last evaluated)."""
+    if d is None:
+        return {}
+    out = {"implicit_lam": _rod_multipliers(self, d)}
+    if d.twist is not None:
+        out.update({f"twist_{k}": getattr(d.twist, k) for k in _TWIST_STATE})
+    return out
 
 
 def _rod_load_state_arrays(self, d, arrays):
     if d is not None and "implicit_lam" in arrays:
         _rod_multipliers(self, d)[:] = arrays["implicit_lam"]
+    if d is not None and d.twist is not None:
+        for k in _TWIST_STATE:
+            if f"twist_{k}" in arrays:
+                getattr(d.twist, k)[...] = arrays[f"twist_{k}"]
 
 
 RodConstraint.state_arrays = _rod_state_arrays
