@@ -548,6 +548,17 @@ def _any_normal(bx, by, bz):
 
 
 @_hot
+def _transport_unit(ux, uy, uz, ax, ay, az, bx, by, bz):
+    """:func:`_transport` normalised; a vector that (nearly) vanishes in transport is replaced
+    by :func:`_any_normal` of b."""
+    ux, uy, uz = _transport(ux, uy, uz, ax, ay, az, bx, by, bz)
+    nu = math.sqrt(ux * ux + uy * uy + uz * uz)
+    if nu > 1e-6:
+        return ux / nu, uy / nu, uz / nu
+    return _any_normal(bx, by, bz)
+
+
+@_hot
 def _twist_row_on(k, g0, v0, verts, w, alpha):
     """Row k of a strand's twist chain is active: row 0 (the root) when the root vertex is
     pinned or kinematic (w = 0), the others when their compliance is finite."""
@@ -579,15 +590,8 @@ def _twist_strand(s, p, w, verts, vptr, d1, tan, theta, omega, winv, reft, alpha
         ex /= ln
         ey /= ln
         ez /= ln
-        ux, uy, uz = _transport(d1[g, 0], d1[g, 1], d1[g, 2], tan[g, 0], tan[g, 1], tan[g, 2],
-                                ex, ey, ez)
-        nu = math.sqrt(ux * ux + uy * uy + uz * uz)
-        if nu > 1e-6:
-            ux /= nu
-            uy /= nu
-            uz /= nu
-        else:
-            ux, uy, uz = _any_normal(ex, ey, ez)
+        ux, uy, uz = _transport_unit(d1[g, 0], d1[g, 1], d1[g, 2], tan[g, 0], tan[g, 1],
+                                     tan[g, 2], ex, ey, ez)
         d1[g, 0] = ux
         d1[g, 1] = uy
         d1[g, 2] = uz
@@ -726,15 +730,9 @@ def bishop_frames(p, verts, vptr, d1, tan):
             if k == 0:
                 ux, uy, uz = _any_normal(px, py, pz)
             else:
-                ux, uy, uz = _transport(d1[g - 1, 0], d1[g - 1, 1], d1[g - 1, 2], tan[g - 1, 0],
-                                        tan[g - 1, 1], tan[g - 1, 2], px, py, pz)
-                nu = math.sqrt(ux * ux + uy * uy + uz * uz)
-                if nu > 1e-6:
-                    ux /= nu
-                    uy /= nu
-                    uz /= nu
-                else:
-                    ux, uy, uz = _any_normal(px, py, pz)
+                ux, uy, uz = _transport_unit(d1[g - 1, 0], d1[g - 1, 1], d1[g - 1, 2],
+                                             tan[g - 1, 0], tan[g - 1, 1], tan[g - 1, 2], px, py,
+                                             pz)
             d1[g, 0] = ux
             d1[g, 1] = uy
             d1[g, 2] = uz
