@@ -13,12 +13,19 @@ from lokigraph.behavior import Behavior, ConstraintBehavior
 from lokigraph.components.core import Dynamic
 from lokigraph.components.materials import Pressure
 
-from ..solvers.nucleus.xpbd import _INF, _REL_EPS
+from ..solvers.nucleus.xpbd import _INF, _REL_EPS, _hot
 
 
 # ==============================================================================================
 # XPBD kernels: global volume of a triangle mesh
 # ==============================================================================================
+@_hot
+def _corners(p, a, b, d, cx, cy, cz):
+    """The corners a, b, d of a triangle relative to the point c (9 floats)."""
+    return (p[a, 0] - cx, p[a, 1] - cy, p[a, 2] - cz, p[b, 0] - cx, p[b, 1] - cy, p[b, 2] - cz,
+            p[d, 0] - cx, p[d, 1] - cy, p[d, 2] - cz)
+
+
 @njit(cache=True)
 def mesh_volume(p, tris):
     """Volume [m^3] enclosed by a triangle mesh w.r.t. the mean of its triangle corners c:
@@ -46,15 +53,7 @@ def mesh_volume(p, tris):
         a = tris[t, 0]
         b = tris[t, 1]
         d = tris[t, 2]
-        ax = p[a, 0] - cx
-        ay = p[a, 1] - cy
-        az = p[a, 2] - cz
-        bx = p[b, 0] - cx
-        by = p[b, 1] - cy
-        bz = p[b, 2] - cz
-        dx = p[d, 0] - cx
-        dy = p[d, 1] - cy
-        dz = p[d, 2] - cz
+        ax, ay, az, bx, by, bz, dx, dy, dz = _corners(p, a, b, d, cx, cy, cz)
         vol += ax * (by * dz - bz * dy) + ay * (bz * dx - bx * dz) + az * (bx * dy - by * dx)
     return vol / 6.0
 
@@ -103,15 +102,7 @@ def project_mesh_volume(p, w, tris, target, alpha, lam, h, work):
         a = tris[t, 0]
         b = tris[t, 1]
         d = tris[t, 2]
-        ax = p[a, 0] - cx
-        ay = p[a, 1] - cy
-        az = p[a, 2] - cz
-        bx = p[b, 0] - cx
-        by = p[b, 1] - cy
-        bz = p[b, 2] - cz
-        dx = p[d, 0] - cx
-        dy = p[d, 1] - cy
-        dz = p[d, 2] - cz
+        ax, ay, az, bx, by, bz, dx, dy, dz = _corners(p, a, b, d, cx, cy, cz)
         # b x d, d x a, a x b
         g0x = s6 * (by * dz - bz * dy)
         g0y = s6 * (bz * dx - bx * dz)
