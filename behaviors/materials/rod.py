@@ -1178,6 +1178,31 @@ def _rod_multipliers(self, d):
     return lam
 
 
+def _rod_hard_k(d, opts):
+    """The hard penalty per vertex of the rod rows: the solver's ``hard_stiffness * m / h^2``
+    of the heaviest vertex of each strand, for all its vertices. A strand carries the load of
+    its heaviest vertex (a weight hung from a light rope: tests/test_implicit_capstan.py)
+    through every row; a penalty from each row's own light vertices let that rope stretch by
+    up to 130 % under the load (the multipliers lag it) and slide off the drum. Unchanged for
+    strands of uniform density (every row already takes its heavier, interior vertex).
+    Refilled in place when the solver hands a new array (once per substep)."""
+    cache = getattr(d, "_implicit_hk", None)
+    if cache is None or cache[1].shape != opts.hard_k.shape:
+        lens = np.diff(d.vptr)
+        owner = np.repeat(np.arange(len(lens)), lens)  # strand of every entry of d.verts
+        starts = np.ascontiguousarray(d.vptr[:-1][lens > 0])
+        cache = d._implicit_hk = [None, np.zeros_like(opts.hard_k), owner,
+                                  np.cumsum(lens > 0) - 1, starts]
+    if cache[0] is not opts.hard_k:
+        hk, owner, dense, starts = cache[1], cache[2], cache[3], cache[4]
+        hk[:] = opts.hard_k
+        if len(starts):
+            top = np.maximum.reduceat(opts.hard_k[d.verts], starts)
+            hk[d.verts] = top[dense[owner]]
+        cache[0] = opts.hard_k
+    return cache[1]
+
+
 def _rod_energy(self, ctx, d, x, grad, hess, opts):
     from ..solvers.implicit.energy import grad_or_dummy, hess_or_dummy
     from .bend import rod_bend_energy
@@ -1185,8 +1210,8 @@ def _rod_energy(self, ctx, d, x, grad, hess, opts):
 
     e, er, ea, ea2, t, tr, ta = _rod_energy_rows(d)
     gr = grad_or_dummy(grad, opts)
-    E = spring_energy(x, e, er, ea, ea2, _rod_multipliers(self, d), opts.hard_k, opts.mode, gr,
-                      hess_or_dummy(hess, 0, opts))
+    E = spring_energy(x, e, er, ea, ea2, _rod_multipliers(self, d), _rod_hard_k(d, opts),
+                      opts.mode, gr, hess_or_dummy(hess, 0, opts))
     if len(t):
         E += rod_bend_energy(x, t, tr, ta, opts.mode, gr, hess_or_dummy(hess, 1, opts))
     return E
@@ -1197,7 +1222,7 @@ def _rod_update_multipliers(self, ctx, d, x, opts):
     from .stretch import spring_update_lam
 
     e, er, ea, ea2 = _rod_energy_rows(d)[:4]
-    spring_update_lam(x, e, er, ea, ea2, _rod_multipliers(self, d), opts.hard_k)
+    spring_update_lam(x, e, er, ea, ea2, _rod_multipliers(self, d), _rod_hard_k(d, opts))
 
 
 RodConstraint.energy_stencils = _rod_energy_stencils

@@ -18,9 +18,20 @@ matrix): the penalty's Gauss-Newton ``k n n^T`` (the curvature term of a sphere 
 negative inside, is dropped) and the friction's exact tangential Hessian, which is PSD for f1
 as above (eigenvalues mu lam (2/eps - 2y/eps^2) along u and mu lam f1(y)/y across).
 
+Augmented Lagrangian (``contact_multipliers``, the default; ``contact_energy_al``): the
+penalty carries a multiplier M_is [N] over from one substep to the next, P = ((M - k d)_+^2 -
+M^2) / (2 k) with the normal force lam = (M - k d)_+, updated after every substep by
+``update_contact_multipliers`` (M <- (M - k d)_+ at the solved positions, before the safety
+projection). At rest M converges to the normal force and d to 0, whatever load presses the
+vertex: the plain penalty's penetration is load / k with k from the vertex's *own* mass, up to
+0.5 mm for a light rope vertex wrapped round a drum under the tension of a heavy weight
+(tests/test_implicit_capstan.py, where the sticking rope then creeps by 0.7 mm over 1.5 s
+instead of 0.012 mm, in 19 Newton iterations per substep instead of 6: graphs/bench/capstan.py
+ablation); with M = 0 (no contact last substep) it is the plain penalty, bitwise.
+
 A vertex that ends the Newton solve inside a shape (the penalty leaves a small penetration,
-~ m g / k at rest) is pushed out along the normal by ``safety_project`` (no friction), and the
-solver reports the largest such move.
+~ m g / k at rest without multipliers) is pushed out along the normal by ``safety_project``
+(no friction), and the solver reports the largest such move.
 """
 
 from __future__ import annotations
@@ -62,6 +73,16 @@ def _dist(x, i, s, kinds, centers, dirs, radii, lengths, n_out):
 def lag_contacts(x, fixed, kinds, centers, dirs, radii, lengths, kc, lam, nrm):
     """Normal forces lam[i, s] = k_i max(-d, 0) and normals nrm[i, s] at x (the lagged values
     of the friction). Returns the number of active (vertex, shape) contacts."""
+    return lag_contacts_al(x, fixed, kinds, centers, dirs, radii, lengths, kc,
+                           np.zeros_like(lam), lam, nrm)
+
+
+@njit(cache=True)
+def lag_contacts_al(x, fixed, kinds, centers, dirs, radii, lengths, kc, mult, lam, nrm):
+    """Normal forces lam[i, s] = max(mult[i, s] - k_i d, 0) (augmented Lagrangian with the
+    multipliers ``mult`` [N] carried over from the last substep; k_i max(-d, 0) without) and
+    normals nrm[i, s] at x (the lagged values of the friction). Returns the number of active
+    (vertex, shape) contacts."""
     n = x.shape[0]
     ns = kinds.shape[0]
     nb = np.zeros(3)
@@ -72,7 +93,14 @@ def lag_contacts(x, fixed, kinds, centers, dirs, radii, lengths, kc, lam, nrm):
             if fixed[i]:
                 continue
             d = _dist(x, i, s, kinds, centers, dirs, radii, lengths, nb)
-            if d < 0.0:
+            L = mult[i, s]
+            if L > 0.0:
+                f = L - kc[i] * d
+                if f > 0.0:
+                    lam[i, s] = f
+                    nrm[i, s, 0], nrm[i, s, 1], nrm[i, s, 2] = nb[0], nb[1], nb[2]
+                    count += 1
+            elif d < 0.0:
                 lam[i, s] = -kc[i] * d
                 nrm[i, s, 0], nrm[i, s, 1], nrm[i, s, 2] = nb[0], nb[1], nb[2]
                 count += 1
@@ -80,10 +108,38 @@ def lag_contacts(x, fixed, kinds, centers, dirs, radii, lengths, kc, lam, nrm):
 
 
 @njit(cache=True)
+def update_contact_multipliers(x, fixed, kinds, centers, dirs, radii, lengths, kc, mult):
+    """After a substep's Newton solve (before the safety projection): mult <- max(mult - k d,
+    0), the augmented Lagrangian update; mult converges to the normal force of a resting
+    contact and its penetration to 0."""
+    n = x.shape[0]
+    ns = kinds.shape[0]
+    nb = np.zeros(3)
+    for i in range(n):
+        for s in range(ns):
+            if fixed[i]:
+                mult[i, s] = 0.0
+                continue
+            d = _dist(x, i, s, kinds, centers, dirs, radii, lengths, nb)
+            f = mult[i, s] - kc[i] * d
+            mult[i, s] = f if f > 0.0 else 0.0
+
+
+@njit(cache=True)
 def contact_energy(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, kc, lam, nrm, eps,
                    mode, grad, A, diag, irls):
     """Penalty + lagged friction energy at x (module docstring); mode >= 1 adds the gradient
     into grad, mode >= 2 adds the 3x3 Hessian blocks into A[diag[i]]."""
+    return contact_energy_al(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, kc,
+                             np.zeros_like(lam), lam, nrm, eps, mode, grad, A, diag, irls)
+
+
+@njit(cache=True)
+def contact_energy_al(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, kc, mult, lam,
+                      nrm, eps, mode, grad, A, diag, irls):
+    """``contact_energy`` with the augmented Lagrangian multipliers ``mult`` [N]: where
+    mult[i, s] > 0 the penalty is ((mult - k d)_+^2 - mult^2) / (2 k) (force (mult - k d)_+
+    along the normal, Hessian k n n^T while it pushes); where it is 0, k / 2 min(d, 0)^2."""
     n = x.shape[0]
     ns = kinds.shape[0]
     nb = np.zeros(3)
@@ -94,7 +150,23 @@ def contact_energy(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, kc, 
             continue
         for s in range(ns):
             d = _dist(x, i, s, kinds, centers, dirs, radii, lengths, nb)
-            if d < 0.0:
+            M = mult[i, s]
+            if M > 0.0:
+                k = kc[i]
+                f = M - k * d
+                if f > 0.0:
+                    E += 0.5 * (f * f - M * M) / k
+                    if mode >= 1:
+                        for r in range(3):
+                            grad[i, r] -= f * nb[r]
+                    if mode >= 2:
+                        b = diag[i]
+                        for r in range(3):
+                            for c in range(3):
+                                A[b, r, c] += k * nb[r] * nb[c]
+                else:
+                    E -= 0.5 * M * M / k
+            elif d < 0.0:
                 k = kc[i]
                 E += 0.5 * k * d * d
                 if mode >= 1:

@@ -36,7 +36,10 @@ Contacts in the Newton solve (``implicit/contact.py``): with ``shape_contact: en
 default) the analytic colliders of ``ShapeCollisionConstraint`` (plane, sphere, capsule) are a
 one-sided penalty ``contact_stiffness * m / h^2`` on the signed distance minus thickness plus
 IPC-style smoothed Coulomb friction with the normal force and normal lagged from the previous
-Newton iterate (the first iteration of a substep takes the last substep's); a final safety
+Newton iterate (the first iteration of a substep takes the last substep's), the penalty's
+normal force carried over between substeps as an augmented Lagrangian multiplier
+(``contact_multipliers``) and the free vertices' initial guess x + h v (``contact_start``: a
+body resting on a collider starts where it rests, not h^2 g inside it); a final safety
 projection pushes any vertex still inside out along the normal. With ``mesh_contact: energy``
 (the default) the vertex-face and edge-edge rows ``CollisionDetect`` built for the substep
 enter the solve the same way (penalty on n0 . sum c_a x_a - target, closest-point
@@ -80,11 +83,13 @@ import scipy.sparse as sp
 from pydantic import Field
 
 from lokigraph.behavior import Behavior, Params
+from lokigraph.components.colliders import ShapeCollider
 from lokigraph.components.core import Dynamic
 from lokigraph.errors import InputError
 
 from ..damping import apply_damping, bind_damping
-from .contact import contact_energy, lag_contacts, lag_rows, row_energy, safety_project
+from .contact import (contact_energy_al, lag_contacts_al, lag_rows, row_energy, safety_project,
+                      update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, scatter_blocks
 from .linear import BlockJacobi, SmoothedAggregation
 
@@ -153,7 +158,11 @@ class ImplicitParams(Params):
     friction_hessian: Literal["irls", "exact"] = Field(
         "exact", description="Friction Hessian block: 'irls' mu lam f1(y)/y (I - n n^T), a "
         "quadratic majorizer (every full step lowers the friction energy); 'exact' IPC's PSD "
-        "Hessian (zero curvature along a sliding direction).")
+        "Hessian (zero curvature along a sliding direction). Measured on ropes over a drum "
+        "(graphs/bench/capstan.py, 1 substep): with end weights both give the capstan "
+        "threshold, 'exact' in 6-14 Newton iterations per substep, 'irls' in 13-20; a uniform "
+        "heavy rope 15 % above its limit slides with 'irls' (strain 0.6 %) but 'exact' steps "
+        "the wrap off the drum along straight tangents (strain 8 %, 20 % at 4 substeps).")
     coupling_iterations: int = Field(
         4, ge=1, le=100, description="Most solid solves per substep when a coupling runs inside "
         "the solver (two-way fluid: Avatar supplement Figure 2, steps A-C repeated until the "
@@ -161,6 +170,16 @@ class ImplicitParams(Params):
     coupling_tolerance: float = Field(
         1e-3, gt=0, description="The coupling loop stops when the fluid velocity it feeds to "
         "drag changes by less than this between two solid solves [m/s].")
+    contact_multipliers: bool = Field(
+        True, description="Analytic colliders (shape_contact: energy): carry each contact's "
+        "normal force over from one substep to the next as an augmented Lagrangian multiplier "
+        "(as hard stretch rows do), so that a resting contact's penetration goes to 0 whatever "
+        "load presses it; false: the plain penalty (penetration ~ load / contact_stiffness).")
+    contact_start: Literal["inertial", "velocity"] = Field(
+        "velocity", description="Initial Newton guess of the free vertices with analytic "
+        "colliders in the solve: 'inertial' x + h v + h^2 f / m (exact for free particles), "
+        "'velocity' x + h v (a resting contact starts where it rests instead of h^2 g inside "
+        "the collider, where the lagged normal forces of the first iterations are far off).")
     contact_tolerance: float = Field(1e-4, gt=0, lt=1, description="Newton does not stop while "
                                      "the lagged normal forces of the contacts change by more "
                                      "than this fraction of the largest one [-].")
@@ -203,7 +222,33 @@ class ImplicitSolver(Behavior):
         m = ctx.model
         damp, keyed = bind_damping(m, elements)
         fixed = m.particle_kinematic | (m.particle_inv_mass <= 0)
-        return _ImplicitData(damp, keyed, fixed)
+        d = _ImplicitData(damp, keyed, fixed)
+        ns = (sum(1 for e in ctx.scene.elements if e.has(ShapeCollider))
+              if self.params.shape_contact == "energy" else 0)
+        d.contact = self._contact_state(m.particle_count, ns)
+        return d
+
+    @staticmethod
+    def _contact_state(n, ns):
+        """The run state of the analytic-collider contacts (checkpointed): multipliers, lagged
+        normal forces and normals per (vertex, shape); scratch buffers."""
+        return {"kc": np.zeros(n), "lam": np.zeros((n, ns)), "mult": np.zeros((n, ns)),
+                "lam_prev": np.zeros((n, ns)), "nrm": np.zeros((n, ns, 3)),
+                "g1": np.zeros((1, 3)), "A1": np.zeros((1, 3, 3)), "active": 0}
+
+    def state_arrays(self, data):
+        """Checkpointed run state: the contact multipliers [N], lagged normal forces [N] and
+        normals of the analytic colliders in the solve (the hard rows' multipliers are their
+        behaviors' state)."""
+        C = data.contact if data is not None else {}
+        if not C or C["mult"].shape[1] == 0:
+            return {}
+        return {"contact_mult": C["mult"], "contact_lam": C["lam"], "contact_nrm": C["nrm"]}
+
+    def load_state_arrays(self, data, arrays):
+        for k in ("mult", "lam", "nrm"):
+            if f"contact_{k}" in arrays:
+                data.contact[k][...] = arrays[f"contact_{k}"]
 
     # -- first substep: sort the constraint types, build the Hessian pattern -----------------
     def _prepare(self, ctx, d):
@@ -258,9 +303,8 @@ class ImplicitSolver(Behavior):
             d.shapes = tuple(np.ascontiguousarray(np.concatenate([getattr(b, f) for b in shapes]))
                              for f in ("kinds", "centers", "dirs", "radii", "lengths", "mus"))
             ns = len(d.shapes[0])
-            d.contact = {"kc": np.zeros(n), "lam": np.zeros((n, ns)),
-                         "lam_prev": np.zeros((n, ns)), "nrm": np.zeros((n, ns, 3)),
-                         "g1": np.zeros((1, 3)), "A1": np.zeros((1, 3, 3)), "active": 0}
+            if d.contact.get("mult") is None or d.contact["mult"].shape != (n, ns):
+                d.contact = self._contact_state(n, ns)  # (bind counts the colliders)
         d.ready = True
 
     # -- energy, gradient and Hessian of the incremental potential ---------------------------
@@ -313,10 +357,11 @@ class ImplicitSolver(Behavior):
                                 eps, mode, g1, A1, d.diag, irls)
         if d.shapes is not None:
             C = d.contact
-            E += contact_energy(x, d.work["x0"], d.cur_fixed, *d.shapes, C["kc"], C["lam"],
-                                C["nrm"], self.params.friction_velocity * h, mode,
-                                grad if mode >= 1 else C["g1"], d.A.data if mode >= 2 else C["A1"],
-                                d.diag, self.params.friction_hessian == "irls")  # skips Dirichlet vertices (their blocks stay I)
+            E += contact_energy_al(x, d.work["x0"], d.cur_fixed, *d.shapes, C["kc"], C["mult"],
+                                   C["lam"], C["nrm"], self.params.friction_velocity * h, mode,
+                                   grad if mode >= 1 else C["g1"],
+                                   d.A.data if mode >= 2 else C["A1"], d.diag,
+                                   self.params.friction_hessian == "irls")  # skips Dirichlet
         if mode >= 1:
             grad[d.cur_fixed] = 0.0
         return E
@@ -345,6 +390,10 @@ class ImplicitSolver(Behavior):
             xt[kin] = ctl.kinematic_q[kin]
         xs = w["xs"]
         xs[:] = xt  # initial guess: the inertial prediction (exact for free particles)
+        if d.shapes is not None and P.contact_start == "velocity":  # free vertices: x + h v
+            np.multiply(v, h, out=xs)
+            xs += x
+            np.copyto(xs, xt, where=d.fixed[:, None])
         opts = EnergyOptions(2, P.hard_stiffness * m.particle_mass / (h * h), h,
                              np.zeros((1, 3)), np.zeros((1, 1, 1, 3, 3)))
         counts = {"newton": 0, "cg": 0, "halvings": 0, "cg_max": 0, "cg_res": 0.0,
@@ -377,6 +426,9 @@ class ImplicitSolver(Behavior):
             ctx.stats["max_projection_move"] = max(ctx.stats.get("max_projection_move", 0.0),
                                                    moved)
         if d.shapes is not None:  # safety projection: no vertex ends inside a shape
+            if P.contact_multipliers:  # augmented Lagrangian update at the solved positions
+                update_contact_multipliers(p, d.cur_fixed, *d.shapes[:5], d.contact["kc"],
+                                           d.contact["mult"])
             moved = safety_project(p, d.cur_fixed, *d.shapes[:5])
             s = ctx.stats
             s["active_contacts"] = s.get("active_contacts", 0) + d.contact["active"]
@@ -502,8 +554,8 @@ class ImplicitSolver(Behavior):
             lagged_ok = True
             if d.shapes is not None:  # friction lagged from this iterate's normal forces
                 C["lam_prev"][:] = C["lam"]
-                C["active"] = lag_contacts(xs, fixed, *d.shapes[:5], C["kc"], C["lam"],
-                                           C["nrm"])
+                C["active"] = lag_contacts_al(xs, fixed, *d.shapes[:5], C["kc"], C["mult"],
+                                              C["lam"], C["nrm"])
                 top = float(C["lam"].max()) if C["active"] else 0.0
                 if top > 0.0:
                     lagged_ok = (float(np.abs(C["lam"] - C["lam_prev"]).max())
