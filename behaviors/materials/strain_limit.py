@@ -69,6 +69,15 @@ class StrainLimitParams(ConstraintParams):
     joint_iterations: int = Field(40, ge=1, le=10000, description="Most joint contact + strain-limit "
                                   "passes in the final collision rounds (stops when both hold).")
     tolerance: float = Field(1e-3, ge=0, description="Accepted relative excess over the limit.")
+    inextensible_max_strain: float | None = Field(
+        None, ge=0, le=10.0, description="Strain limit eps_e [-] given to every inextensible "
+        "DiscreteShell (youngs_modulus null) that sets no max_strain, solved with the contacts "
+        "like a painted one; null = none (default). Measured at 0.05 with joint_iterations 10 "
+        "and stretch long_range_levels 5, sweeps 3 (worst-frame edge strain over 24 frames): "
+        "cloth_on_sphere 7.5 %, sleeve_elbow 20.7 %, skirt_walk 5.0 %, flag_wind 5.0 %, at "
+        "+6 % CPU on cloth_on_sphere; without the long-range rows cloth_on_sphere reaches 77 %. "
+        "Opt-in: in the stress case of a cloth starting interpenetrated it ends with 2 more "
+        "crossing pairs than it starts with (305 -> 307).")
 
 
 @dataclass
@@ -90,15 +99,19 @@ class StrainLimitConstraint(ConstraintBehavior):
 
     def bind(self, ctx, elements):
         es, lims = [], []
+        auto = self.params.inextensible_max_strain
         for e in elements:
             c = e.get(DiscreteShell) or e.get(Rod)
-            if c.max_strain is None:
+            if c.max_strain is None and (auto is None or not isinstance(c, DiscreteShell)
+                                         or c.youngs_modulus is not None
+                                         or not len(e.geometry.triangles)):
                 continue
             g = e.geometry
             edges = T.triangle_edges(g.triangles) if len(g.triangles) else g.edges
             if not len(edges):
                 continue
-            eps = resolve_paintable(c.max_strain, e, f"{type(c).__name__}.max_strain")
+            eps = (np.full(e.vertex_count, float(auto)) if c.max_strain is None else
+                   resolve_paintable(c.max_strain, e, f"{type(c).__name__}.max_strain"))
             if np.any(eps < 0):
                 ctx.error(e, f"{type(c).__name__}.max_strain", "must be >= 0")
                 continue

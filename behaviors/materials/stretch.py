@@ -3,16 +3,20 @@ edges, with separate stretch and compression compliance and optional stretch dam
 
 :class:`StretchConstraint` packs the edges of all bound elements at bind; the XPBD kernels below
 project them (conventions in :mod:`lokigraph.behaviors.solvers.nucleus.xpbd`). Stitches
-(:mod:`lokigraph.behaviors.attachments.stitch`) reuse the same edge projection."""
+(:mod:`lokigraph.behaviors.attachments.stitch`) reuse the same edge projection. Inextensible
+cloth can add hierarchical long-range rows and extra edge sweeps (``long_range_levels``,
+``sweeps``; opt-in, see the section comment before the behavior and the parameters)."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit, prange
+from pydantic import Field
 
-from lokigraph.behavior import ConstraintBehavior
+from lokigraph.behavior import ConstraintBehavior, ConstraintParams
 from lokigraph.components.core import Dynamic
 from lokigraph.components.materials import DiscreteShell, Rod, Volume
 from lokigraph.geometry import triangle_areas
@@ -177,6 +181,123 @@ def rest_lengths(x, edges):
     return np.linalg.norm(x[edges[:, 0]] - x[edges[:, 1]], axis=1)
 
 
+# ------------------------------------------------------------------ hierarchical long-range rows
+#
+# Gauss-Seidel over the edges of a sheet moves a correction about one edge per colour sweep, so
+# an inextensible cloth that must stop (landing on a body, caught by a contact, a gust) stretches
+# by whatever the iterations cannot carry across it: measured on the 64 x 64 drop onto a sphere,
+# the edge strain after the iterations is what the frame keeps (the final collision rounds and
+# the CCD step change it by less than 0.1 %), contacts first or last, with or without friction
+# or self-collision, and 400 alternating stretch/contact sweeps on a stretched state leave it at
+# 150 %. The long-range rows below carry the correction across the sheet in one sweep: along
+# every straight line of mesh edges, vertices 2, 4, ... 2^levels edges apart keep at most the
+# rest length of the line between them, ``|p_i - p_j| <= sum of the rest edge lengths``. The
+# bound is the length of a curve on the rest surface, so every isometric deformation meets it
+# (the rows never fight an unstretched cloth); they are unilateral and hard, projected with the
+# same mass weighting as the edges, before the edge sweeps of every stretch pass.
+
+
+@njit(cache=True)
+def _straight_next(X, src, dst, ptr, cos_min):
+    """For every directed edge (src -> dst), the out-edge of dst that continues it most
+    straightly in the rest positions X (cosine above ``cos_min``), or -1."""
+    m = src.shape[0]
+    nxt = np.full(m, -1, np.int64)
+    for e in range(m):
+        a = src[e]
+        b = dst[e]
+        dx = X[b, 0] - X[a, 0]
+        dy = X[b, 1] - X[a, 1]
+        dz = X[b, 2] - X[a, 2]
+        la = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if la <= 0.0:
+            continue
+        best = cos_min
+        for f in range(ptr[b], ptr[b + 1]):
+            c = dst[f]
+            ex = X[c, 0] - X[b, 0]
+            ey = X[c, 1] - X[b, 1]
+            ez = X[c, 2] - X[b, 2]
+            lb = math.sqrt(ex * ex + ey * ey + ez * ez)
+            if lb <= 0.0:
+                continue
+            cs = (dx * ex + dy * ey + dz * ez) / (la * lb)
+            if cs > best:
+                best = cs
+                nxt[e] = f
+    return nxt
+
+
+@njit(cache=True)
+def _line_pairs(X, src, dst, rev, nxt, levels, out_i, out_j, out_l, line):
+    """Walk the straight lines of directed edges (``nxt``: continuation, ``rev``: the reverse
+    edge) and write the long-range rows of every line: vertices k and k + s (s = 2, 4, ...,
+    2^levels edges apart, k a multiple of s / 2) with the rest length of the line between them.
+    Each undirected edge belongs to one line. Returns the number of rows."""
+    m = src.shape[0]
+    has_prev = np.zeros(m, np.bool_)
+    for e in range(m):
+        if nxt[e] >= 0:
+            has_prev[nxt[e]] = True
+    seen = np.zeros(m, np.bool_)
+    cum = np.zeros(line.shape[0] + 1)
+    k = 0
+    for sweep in range(2):  # open lines from their first edge, then closed loops anywhere
+        for e0 in range(m):
+            if seen[e0] or (sweep == 0 and has_prev[e0]):
+                continue
+            nv = 0
+            line[nv] = src[e0]
+            cum[0] = 0.0
+            e = e0
+            while e >= 0 and not seen[e]:
+                seen[e] = True
+                seen[rev[e]] = True
+                a = src[e]
+                b = dst[e]
+                nv += 1
+                line[nv] = b
+                cum[nv] = cum[nv - 1] + math.sqrt((X[b, 0] - X[a, 0]) ** 2
+                                                  + (X[b, 1] - X[a, 1]) ** 2
+                                                  + (X[b, 2] - X[a, 2]) ** 2)
+                e = nxt[e]
+            for lv in range(1, levels + 1):
+                s = 1 << lv
+                if s > nv:
+                    break
+                step = s // 2
+                for i in range(0, nv - s + 1, step):
+                    out_i[k] = line[i]
+                    out_j[k] = line[i + s]
+                    out_l[k] = cum[i + s] - cum[i]
+                    k += 1
+    return k
+
+
+def long_range_rows(X, edges, levels, cos_min=0.95):
+    """Hierarchical long-range rows of a mesh (see the section comment): ``(pairs (r, 2) int64,
+    bound [m] (r,))`` for the rest positions X [m] (n, 3) and edges (m, 2), lines continuing
+    where the next edge turns by less than ``acos(cos_min)``."""
+    X = np.ascontiguousarray(X, dtype=np.float64)
+    edges = np.asarray(edges, dtype=np.int64)
+    m = len(edges)
+    if levels <= 0 or m == 0:
+        return np.zeros((0, 2), np.int64), np.zeros(0)
+    src = np.concatenate([edges[:, 0], edges[:, 1]])
+    dst = np.concatenate([edges[:, 1], edges[:, 0]])
+    order = np.argsort(src, kind="stable")
+    inv = np.empty_like(order)
+    inv[order] = np.arange(2 * m)
+    src, dst = src[order], dst[order]
+    rev = inv[(order + m) % (2 * m)]  # position of the reverse of each sorted directed edge
+    ptr = np.concatenate([[0], np.cumsum(np.bincount(src, minlength=len(X)))]).astype(np.int64)
+    nxt = _straight_next(X, src, dst, ptr, cos_min)
+    cap = 2 * m * levels + 16
+    oi, oj, ol = np.zeros(cap, np.int64), np.zeros(cap, np.int64), np.zeros(cap)
+    k = _line_pairs(X, src, dst, rev, nxt, int(levels), oi, oj, ol, np.zeros(m + 1, np.int64))
+    return np.stack([oi[:k], oj[:k]], axis=1), ol[:k]
+
+
 # ------------------------------------------------------------------ Nucleus constraint behavior
 
 
@@ -193,10 +314,46 @@ def _project_edges(ctx, d, p):
         fn(p, w, d.idx, d.rest, d.alpha, d.alpha2, d.lam, ctx.dt, d.color_ptr)
 
 
+class StretchParams(ConstraintParams):
+    long_range_levels: int = Field(0, ge=0, le=16, description="Hierarchical long-range rows "
+                                   "of inextensible DiscreteShell cloth (see the module's "
+                                   "section comment): along every straight line of edges, "
+                                   "vertices 2, 4, ..., 2^levels edges apart stay within the "
+                                   "rest length of the line between them; 0 = off (default). "
+                                   "Measured at 5 levels and 3 sweeps, worst-frame edge strain "
+                                   "over 24 frames, off -> on: cloth_on_sphere 184 -> 26 %, "
+                                   "cloth_pinned 10.2 -> 2.0 %, flag_wind 17.1 -> 6.1 %, "
+                                   "skirt_walk 8.0 -> 6.6 %; sleeve_elbow (a pinch) 95 -> 99 %. "
+                                   "Opt-in: vertices then move beyond the envelope their "
+                                   "contacts were detected for (the stress projectile ends with "
+                                   "6 cloth-ball crossings) unless collisions.redetect is on, "
+                                   "which costs 2.3x on cloth_on_sphere; and three collision "
+                                   "tests change outcome (fast ball rebound timing, a gap median "
+                                   "on a box, a pinch recession across substeps).")
+    sweeps: int = Field(1, ge=1, le=100, description="Edge sweeps per stretch pass when the "
+                        "set holds inextensible cloth (1 = default; other sets always 1). "
+                        "Edges are cheap next to contacts; more sweeps carry corrections "
+                        "farther per iteration (cloth_on_sphere with 5 long-range levels, 1 -> "
+                        "3 sweeps: 47 -> 26 %). Cost of 5 levels + 3 sweeps, CPU ms/frame "
+                        "before -> after in one run: 534 -> 482 on the 64 x 64 drop (fewer "
+                        "active contacts), 15 -> 30 on cloth_pinned (32 x 32, no contacts).")
+
+
+@dataclass
+class _StretchData(Packed):
+    """The packed edges plus the long-range rows (None when there are none) and the sweeps."""
+
+    long_range: Packed | None = None
+    sweeps: int = 1
+
+
 class StretchConstraint(ConstraintBehavior):
     """Type 1 (edge length) on cloth edges, hair segments and tet edges, with separate stretch
-    and compression compliance (and optional stretch damping)."""
+    and compression compliance (and optional stretch damping); inextensible cloth adds the
+    hierarchical long-range rows (``long_range_levels``) and sweeps its edges ``sweeps`` times
+    per pass."""
 
+    ParamsModel = StretchParams
     requires = (Dynamic,)
     requires_any = (DiscreteShell, Rod, Volume)
     default_importance = 1.0
@@ -204,6 +361,8 @@ class StretchConstraint(ConstraintBehavior):
 
     def bind(self, ctx, elements):
         parts = []
+        lr_parts = []
+        shell = False  # any inextensible cloth: the extra sweeps apply
         for e in elements:
             g = e.geometry
             off = e.vertex_offset
@@ -212,6 +371,11 @@ class StretchConstraint(ConstraintBehavior):
                 X = _rest(ctx, e, c)
                 topo = T.triangle_topology(g.triangles)
                 edges = topo.edges
+                shell |= c.youngs_modulus is None
+                if c.youngs_modulus is None and self.params.long_range_levels > 0:
+                    pr, bound = long_range_rows(X, edges, self.params.long_range_levels)
+                    if len(pr):
+                        lr_parts.append((pr + off, bound * c.rest_length_scale))
                 L = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
                 area = triangle_areas(X, g.triangles)
                 Ae = np.bincount(topo.tri_edges.ravel(), np.repeat(area / 3.0, 3),
@@ -251,16 +415,37 @@ class StretchConstraint(ConstraintBehavior):
         if cat is None:
             return None
         idx, L, a, ac, beta = cat
-        return Packed.build(idx, L, a, ac, beta=beta if beta.any() else None)
+        d = _StretchData.build(idx, L, a, ac, beta=beta if beta.any() else None)
+        d.sweeps = int(self.params.sweeps) if shell else 1
+        if lr_parts:
+            pr = np.concatenate([q[0] for q in lr_parts])
+            bound = np.concatenate([q[1] for q in lr_parts])
+            # hard (alpha 0), stretch only (compression compliance inf: never pushes apart)
+            # one thread, in colour order: measured faster than the coloured parallel sweep
+            # at 32^2 to 128^2 on the shared 2-core machine (40 colours of a few hundred rows)
+            d.long_range = Packed.build(pr, bound, np.zeros(len(bound)),
+                                        np.full(len(bound), np.inf), sequential=True)
+        return d
 
     def project(self, ctx, d, p):
-        _project_edges(ctx, d, p)
+        lr = d.long_range
+        if lr is not None:
+            fn = project_stretch_seq if lr.sequential else project_stretch
+            fn(p, ctx.model.particle_inv_mass, lr.idx, lr.rest, lr.alpha, lr.alpha2, lr.lam,
+               ctx.dt, lr.color_ptr)
+        for _ in range(d.sweeps):
+            _project_edges(ctx, d, p)
 
     def residual(self, ctx, d, p):
         return float(residual_stretch(p, d.idx, d.rest)[0])
 
     def describe(self, d):
-        return f"{len(d)} edges, {len(d.color_ptr) - 1} colours" if d is not None else ""
+        if d is None:
+            return ""
+        lr = d.long_range
+        return (f"{len(d)} edges, {len(d.color_ptr) - 1} colours"
+                + (f", {d.sweeps} sweeps" if d.sweeps > 1 else "")
+                + (f", {len(lr)} long-range rows" if lr is not None else ""))
 
 
 def _compress(a, ratio):
