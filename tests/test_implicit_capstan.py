@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from lokigraph.bench.references import capstan_limit
 from lokigraph.compile import compile_scene
 from lokigraph.run import Simulation
 from lokigraph.scene import load_scene
@@ -88,21 +89,9 @@ elements:
 
 
 def _limit_ratio(P, m, mu):
-    """T1 / T2 at the limit of the discrete rope ``P`` with vertex masses ``m``: from the
-    tension of the right hanging part, march over the arc vertices with the friction mu N of
-    each at its limit (against a slip toward the heavy left side) and the vertex's weight."""
-    a0, a1 = NH, NH + NA
-    T = G * m[a1 + 1:].sum()
-    for i in range(a1, a0 - 1, -1):
-        t_out = (P[i + 1] - P[i])[:2] / np.linalg.norm(P[i + 1] - P[i])
-        t_in = (P[i - 1] - P[i])[:2] / np.linalg.norm(P[i - 1] - P[i])
-        nrm = P[i, :2] / np.linalg.norm(P[i, :2])
-        tan = np.array([-nrm[1], nrm[0]])
-        if tan @ t_out < 0:
-            tan = -tan
-        A = np.stack([t_in, nrm + mu * tan], 1)
-        T, _N = np.linalg.solve(A, -(T * t_out + np.array([0.0, -m[i] * G])))
-    return T / (G * m[a1 + 1:].sum())
+    """T1 / T2 at the limit of the discrete rope ``P`` with vertex masses ``m`` (the arc is
+    vertices NH .. NH + NA): :func:`lokigraph.bench.references.capstan_limit`."""
+    return capstan_limit(P, m, NH, NH + NA, mu, G)
 
 
 def _run(c, sim, frames):

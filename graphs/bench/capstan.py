@@ -10,7 +10,8 @@ with both solvers. Settings measured in one run (on a shared machine compare rat
 kg/m, with end weights; its discrete limit is 1.011 exp(mu pi)). ``nucleus``: a uniform rope
 of 0.05 kg/m hanging 8 cm on the light side and ``f exp(mu pi)`` times that on the heavy side
 (no end weights): the rope on the drum (16 chords, 8 g) weighs twice the light side, so its
-limit, from a force balance of every arc vertex (``limit_ratio``), is 1.49 exp(mu pi), not
+limit, from a force balance of every arc vertex
+(``lokigraph.bench.references.capstan_limit``), is 1.49 exp(mu pi), not
 exp(mu pi). Columns: the heavy end's displacement, the largest segment strain, the wrap's
 largest lift off the drum, Newton iterations per substep (implicit), CPU seconds.
 """
@@ -25,6 +26,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from lokigraph.bench.references import capstan_limit
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -125,29 +128,11 @@ elements:
     return c, Simulation(c), n1
 
 
-def limit_ratio(P, m, a0, a1, mu):
-    """Largest T(segment a0-1, a0) / T(segment a1, a1+1) the arc vertices a0..a1 hold (each at
-    its friction limit mu N against a slip toward index 0, with its own weight)."""
-    g = 9.81
-    T2 = g * m[a1 + 1:].sum()
-    t = T2
-    for i in range(a1, a0 - 1, -1):
-        t_out = (P[i + 1] - P[i])[:2] / np.linalg.norm(P[i + 1] - P[i])
-        t_in = (P[i - 1] - P[i])[:2] / np.linalg.norm(P[i - 1] - P[i])
-        nrm = P[i, :2] / np.linalg.norm(P[i, :2])
-        tan = np.array([-nrm[1], nrm[0]])
-        if tan @ t_out < 0:
-            tan = -tan
-        A = np.stack([t_in, nrm + mu * tan], 1)
-        t, _n = np.linalg.solve(A, -(t * t_out + np.array([0.0, -m[i] * g])))
-    return t / T2
-
-
 def nucleus(solver="nucleus", runs=((1, ""), (1, "nucleus_solver: {iterations: 60}"), (4, ""),
                                      (4, "nucleus_solver: {iterations: 60}"), (16, ""))):
     c, _sim, n1 = heavy_rope(_tmp(), 1.0, 1)
     m = c.model.particle_mass
-    lim = limit_ratio(c.model.particle_q0, m, n1, n1 + 16, MU)
+    lim = capstan_limit(c.model.particle_q0, m, n1, n1 + 16, MU)
     print(f"uniform heavy rope: its limit W1/W2 = {lim / E:.3f} exp(mu pi) (f = 1 hangs "
           f"W1/W2 = {m[:n1].sum() / m[n1 + 17:].sum() / E:.3f} exp(mu pi): the last half "
           f"segments)")

@@ -246,6 +246,26 @@ FUNCTIONS = {"free_fall": free_fall, "spring": spring, "catenary": catenary,
              "elastica": elastica, "terminal_velocity": terminal_velocity, "stored": stored}
 
 
+def capstan_limit(P, m, a0, a1, mu, g=9.81):
+    """Largest tension ratio T1 / T2 a discrete rope on a drum holds: ``P`` (n, 3) vertex
+    positions with the drum's axis along z through the origin, ``m`` vertex masses [kg],
+    vertices ``a0 .. a1`` on the drum, the part beyond ``a1`` hanging free (T2 = its weight).
+    Marches over the arc vertices from a1 to a0, each at its friction limit mu N against a
+    slip toward index 0, with its own weight (the discrete form of exp(mu theta))."""
+    T2 = g * float(np.sum(m[a1 + 1:]))
+    t = T2
+    for i in range(a1, a0 - 1, -1):
+        t_out = (P[i + 1] - P[i])[:2] / np.linalg.norm(P[i + 1] - P[i])
+        t_in = (P[i - 1] - P[i])[:2] / np.linalg.norm(P[i - 1] - P[i])
+        nrm = P[i, :2] / np.linalg.norm(P[i, :2])
+        tan = np.array([-nrm[1], nrm[0]])
+        if tan @ t_out < 0:
+            tan = -tan
+        A = np.stack([t_in, nrm + mu * tan], 1)
+        t, _n = np.linalg.solve(A, -(t * t_out + np.array([0.0, -m[i] * g])))
+    return t / T2
+
+
 def evaluate(compiled, spec, t):
     """(indices, positions) of the reference named by ``spec`` (the scene's ``reference``)."""
     return FUNCTIONS[spec.kind](compiled, spec, t)
