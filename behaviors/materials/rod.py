@@ -264,16 +264,7 @@ def _strand_rows(s, p, w, verts, vptr, rptr, kind, rest, alpha, alpha2, lam, lam
                 e1y = cy / cn
                 e1z = cz / cn
             else:  # straight: any unit vector normal to b
-                if abs(bx) <= abs(by) and abs(bx) <= abs(bz):
-                    e1x, e1y, e1z = 1.0 - bx * bx, -bx * by, -bx * bz
-                elif abs(by) <= abs(bz):
-                    e1x, e1y, e1z = -by * bx, 1.0 - by * by, -by * bz
-                else:
-                    e1x, e1y, e1z = -bz * bx, -bz * by, 1.0 - bz * bz
-                ne = math.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
-                e1x /= ne
-                e1y /= ne
-                e1z /= ne
+                e1x, e1y, e1z = _any_normal(bx, by, bz)
             e2x = by * e1z - bz * e1y
             e2y = bz * e1x - bx * e1z
             e2z = bx * e1y - by * e1x
