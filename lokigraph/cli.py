@@ -105,6 +105,8 @@ def _parser() -> argparse.ArgumentParser:
     stz.add_argument("--quick", action="store_true", help="small and short (for CI)")
     stz.add_argument("--out", help="folder for stress.json")
     stz.add_argument("--only", help="run only the cases whose name contains this text")
+    stz.add_argument("--solver", choices=("nucleus", "implicit"), default="nucleus",
+                     help="solver every case's scene runs (solver: in the scene; default nucleus)")
 
     from .wedge import add_parser as _add_wedge
 
@@ -212,7 +214,8 @@ def _dispatch(args) -> int:
 
         try:
             rows = run_stress(args.quick, Path(args.out) if args.out else None, args.only,
-                              progress=lambda r: print(format_rows([r]), flush=True))
+                              progress=lambda r: print(format_rows([r]), flush=True),
+                              solver=args.solver)
         except ValueError as exc:
             raise InputError(f"stress: {exc}") from None
         except OSError as exc:

@@ -88,7 +88,23 @@ def _scene(elements: str, substeps=1, fps=24, frames=24, extra_top="") -> str:
             f"substeps: {substeps}\n{extra_top}elements:{elements}")
 
 
-def cases(quick: bool) -> list[Case]:
+#: solvers ``lokigraph stress --solver`` accepts (the scene's ``solver:``)
+SOLVERS = ("nucleus", "implicit")
+
+
+def with_solver(scene: str, solver: str) -> str:
+    """The scene text with ``solver: <solver>`` set (after its ``lokigraph: 1`` line)."""
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r} (expected one of {', '.join(SOLVERS)})")
+    head, sep, rest = scene.partition("\n")
+    if not head.startswith("lokigraph:") or "\nsolver:" in scene:
+        raise ValueError("stress scene must start with 'lokigraph: 1' and set no solver")
+    return f"{head}\nsolver: {solver}{sep}{rest}"
+
+
+def cases(quick: bool, solver: str = "nucleus") -> list[Case]:
+    """The stress cases (48x48 cloth, 48 frames; ``quick``: 16x16, 24 frames), every scene run
+    by ``solver``."""
     res = 16 if quick else 48
     f = 24 if quick else 48
     out = [
@@ -149,6 +165,8 @@ def cases(quick: bool) -> list[Case]:
     components: {CollisionGroup: {members: [cloth], methods: [vertex_face, edge_edge, self]}}
 """, 2, frames=f, extra_top="gravity: [0, 0, 0]\n"), f, random_speed=50.0),
     ]
+    for c in out:
+        c.scene = with_solver(c.scene, solver)
     return out
 
 
@@ -187,6 +205,7 @@ def run_case(case: Case, work: Path) -> dict:
     p.write_text(case.scene)
     t0 = time.perf_counter()
     res = {"case": case.name, "passed": False, "frames": case.frames}
+    t_cpu = time.process_time()
     try:
         c = compile_file(p)
         sim = Simulation(c)
@@ -250,19 +269,21 @@ def run_case(case: Case, work: Path) -> dict:
     except SimulationError as exc:
         res.update(why=f"non-finite: {exc}")
     res["seconds"] = time.perf_counter() - t0
+    res["cpu_seconds"] = time.process_time() - t_cpu
     return res
 
 
 def run_stress(quick: bool = True, out: Path | None = None, only: str | None = None,
-               progress=None) -> list[dict]:
-    """Run every case (or those whose name contains ``only``); ``progress(row)`` after each."""
+               progress=None, solver: str = "nucleus") -> list[dict]:
+    """Run every case (or those whose name contains ``only``) with ``solver``; ``progress(row)``
+    after each. Every row records the solver."""
     rows = []
-    selected = [c for c in cases(quick) if only is None or only.lower() in c.name.lower()]
+    selected = [c for c in cases(quick, solver) if only is None or only.lower() in c.name.lower()]
     if not selected:
         raise ValueError(f"no stress case matches {only!r}")
     with tempfile.TemporaryDirectory() as tmp:
         for i, case in enumerate(selected):
-            rows.append(run_case(case, Path(tmp) / f"case{i}"))
+            rows.append({**run_case(case, Path(tmp) / f"case{i}"), "solver": solver})
             if progress is not None:
                 progress(rows[-1])
     if out is not None:
@@ -278,6 +299,7 @@ def format_rows(rows) -> str:
         det = (f"energy excess {r.get('energy_excess_J', float('nan')):.3g} J, "
                f"penetrations {r.get('max_penetrations', '-')}, end strain "
                f"{r.get('end_strain') if r.get('end_strain') is None else round(r['end_strain'], 4)}"
-               f", {r['seconds']:.1f} s")
+               f", {r['seconds']:.1f} s" + (f" (CPU {r['cpu_seconds']:.1f} s)"
+                                            if "cpu_seconds" in r else ""))
         lines.append(f"{status}  {r['case']}: {det}" + (f"  ({r['why']})" if r.get("why") else ""))
     return "\n".join(lines)

@@ -282,10 +282,37 @@ def lag_rows(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam):
 
 
 @njit(cache=True)
+def start_targets(x, rows, nrm, target, coef, out):
+    """The targets of the contact rows in the Newton solve: ``min(target, gap)`` with ``gap``
+    the row's signed gap along its normal at x (the start of the substep, coefficients
+    ``coef`` lagged there). A row its pair already violates at the start (a crossed pair's
+    "back toward the remembered side" row, a pair pressed inside its thickness) only stops
+    approaching in the solve: its penalty holds no energy at the start that the solve would
+    turn into motion; the recovery push stays with CollisionConstraint's projection pass,
+    as Nucleus applies it. Returns the number of rows lowered."""
+    low = 0
+    for r in range(rows.shape[0]):
+        g = 0.0
+        for j in range(4):
+            a = rows[r, j]
+            for q in range(3):
+                g += coef[r, j] * x[a, q] * nrm[r, q]
+        if g < target[r]:
+            out[r] = g
+            low += 1
+        else:
+            out[r] = target[r]
+    return low
+
+
+@njit(cache=True)
 def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, grad, A, diag,
-               irls):
+               irls, reach=0.0):
     """Penalty + lagged friction energy of the contact rows at x (see above); gradient and
-    block-diagonal Hessian as ``contact_energy``."""
+    block-diagonal Hessian as ``contact_energy``. With mode 2 a row not active at x but within
+    ``reach`` [m] of its target (0 <= C < reach) still writes its penalty block k n n^T: the
+    Newton model then sees the contacts a step is about to close (the energy and gradient are
+    unchanged; the matrix stays positive definite, so CG and the line search apply)."""
     g = np.zeros(3)
     u = np.zeros(3)
     blk = np.zeros((3, 3))
@@ -313,6 +340,11 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
                 for p in range(3):
                     for q in range(3):
                         blk[p, q] = k * nrm[r, p] * nrm[r, q]
+            have = True
+        elif mode >= 2 and C < reach:  # inactive but near: its curvature in the Newton model
+            for p in range(3):
+                for q in range(3):
+                    blk[p, q] = k * nrm[r, p] * nrm[r, q]
             have = True
         L = lam[r]
         m = mu[r]
