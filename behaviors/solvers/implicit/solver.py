@@ -481,6 +481,9 @@ class ImplicitSolver(Behavior):
             s = ctx.stats
             s["contact_rows"] = s.get("contact_rows", 0) + d.rows["active"]
             s["max_contact_rows"] = max(s.get("max_contact_rows", 0), d.rows["active"])
+        for b, bd, *_ in d.energies:  # per-substep hooks on the final positions (the rods'
+            if hasattr(b, "after_finalize"):  # material-frame twist)
+                b.after_finalize(ctx, bd, p)
         for b, bd, *_ in d.energies:  # augmented Lagrangian multipliers of hard rows
             if hasattr(b, "energy_update_multipliers"):
                 b.energy_update_multipliers(ctx, bd, p, opts)
