@@ -175,6 +175,24 @@ class BlockJacobi:
                                 work["r"], work["z"], work["p"], work["Ap"])
 
 
+class Identity:
+    """No preconditioner (plain CG), for measuring what the block-Jacobi one gains."""
+
+    name = "none"
+
+    def __init__(self, n):
+        pass
+
+    def setup(self, A, diag_index):
+        pass
+
+    def __call__(self, r, z):
+        z[:] = r
+
+    def solve(self, A, b, tol, maxit, x, work):
+        return pcg(A, b, self, tol, maxit, x, work)
+
+
 class SmoothedAggregation:
     """pyamg smoothed aggregation, one V-cycle per application (rebuilt per Newton iteration);
     for measurement against block-Jacobi."""

@@ -108,7 +108,7 @@ from ..damping import apply_damping, bind_damping
 from .contact import (contact_energy_al, lag_contacts_al, lag_rows, row_energy, safety_project,
                       start_targets, update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, scatter_blocks
-from .linear import BlockJacobi, SmoothedAggregation
+from .linear import BlockJacobi, Identity, SmoothedAggregation
 
 #: constraint types applied by the projection pass after the Newton solve (see module docstring)
 PROJECTED_TYPES = ("CollisionConstraint", "ShapeCollisionConstraint", "StrainLimitConstraint",
@@ -132,9 +132,10 @@ class ImplicitParams(Params):
                                 "relative to the Newton gradient [-] (default from "
                                 "graphs/bench/drape_ref.yaml: 1e-2 .. 1e-5 give the same error, "
                                 "1e-3 keeps a margin at 70 % of the CG iterations of 1e-4).")
-    preconditioner: Literal["block_jacobi", "amg"] = Field(
-        "block_jacobi", description="CG preconditioner: inverse 3x3 diagonal blocks, or pyamg "
-        "smoothed aggregation (one V-cycle, rebuilt per Newton iteration).")
+    preconditioner: Literal["block_jacobi", "amg", "none"] = Field(
+        "block_jacobi", description="CG preconditioner: inverse 3x3 diagonal blocks, pyamg "
+        "smoothed aggregation (one V-cycle, rebuilt per Newton iteration), or none (plain CG, "
+        "for comparison; measured in graphs/bench/implicit_precond.py).")
     hard_stiffness: float = Field(1e4, gt=0, description="Penalty of hard rows (inextensible "
                                   "stretch, welds, hard attachments) as a multiple of the "
                                   "inertia m / h^2 of their heaviest vertex [-]; stretch rows "
@@ -333,7 +334,8 @@ class ImplicitSolver(Behavior):
         d.projected = projected
         d.diag = diag
         d.brow = np.repeat(np.arange(n), np.diff(indptr))
-        d.precond = (SmoothedAggregation(n) if self.params.preconditioner == "amg"
+        d.precond = (Identity(n) if self.params.preconditioner == "none" else
+                     SmoothedAggregation(n) if self.params.preconditioner == "amg"
                      else BlockJacobi(n))
         d.work = {k: np.zeros((n, 3)) for k in ("r", "z", "p", "g", "dx", "xt", "xs", "x0",
                                                "du", "Ap", "pp")}
