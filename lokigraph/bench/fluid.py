@@ -2,6 +2,7 @@
 
     lokigraph bench --fluid 64                      (the pressure solve table)
     python -m lokigraph.bench.fluid [--n 64] [--repeats 3] [--cloth]
+    python -m lokigraph.bench.fluid --cape
 
 1. The pressure solve of an n^3 MAC grid (walls on five faces, open top; a random velocity
    field, relative residual 1e-8): CG preconditioned by one pyamg smoothed-aggregation V-cycle
@@ -13,6 +14,10 @@
    loop inside it), interleaved frame by frame: ms per frame (CPU and wall), the share of the
    fluid work (advection, drag reaction and pressure solves), and with the implicit solver the
    solid solves per substep of the coupling loop.
+3. ``--cape``: graphs/examples/cape_run.yaml (a cape on a torso running through still air, the
+   torso a moving obstacle of the grid) with Nucleus, with Nucleus and ``obstacles: []`` (what
+   the moving obstacle costs) and with the implicit solver, interleaved frame by frame: ms per
+   frame (CPU and wall), pressure-solve CPU per frame, solid solves per substep.
 
 ``bench_pressure(n, repeats)`` returns the table as a list of dicts (for ``lokigraph bench``).
 """
@@ -149,6 +154,51 @@ def bench_cloth(n: int = 64, frames: int = 6, solvers=("nucleus", "implicit")) -
     return out
 
 
+def bench_cape(frames: int = 12) -> list[dict]:
+    from pathlib import Path
+
+    from lokigraph.compile import compile_scene
+    from lokigraph.run import Simulation
+    from lokigraph.scene import load_scene
+
+    import lokigraph.graphs
+
+    path = Path(lokigraph.graphs.__file__).resolve().parent / "examples" / "cape_run.yaml"
+
+    def make(solver, obstacles=None):
+        sc = load_scene(path)
+        sc.spec = sc.spec.model_copy(update={"solver": solver})
+        air = next(e for e in sc.elements if e.name == "air")
+        upd = {"write_fields": False}
+        if obstacles is not None:
+            upd["obstacles"] = obstacles
+        air.components["FluidDomain"] = air.components["FluidDomain"].model_copy(update=upd)
+        return Simulation(compile_scene(sc))
+
+    runs = {"nucleus": make("nucleus"), "nucleus, obstacles: []": make("nucleus", []),
+            "implicit": make("implicit")}
+    acc = {k: {"cpu": 0.0, "wall": 0.0, "pressure": 0.0, "coupling": 0.0} for k in runs}
+    for sim in runs.values():  # JIT warm-up frame, not counted
+        sim.step_frame()
+    for _ in range(frames):
+        for k, sim in runs.items():
+            t0, c0 = time.perf_counter(), time.process_time()
+            st = sim.step_frame()
+            a = acc[k]
+            a["cpu"] += time.process_time() - c0
+            a["wall"] += time.perf_counter() - t0
+            a["pressure"] += st.get("fluid_pressure_cpu_s", 0.0)
+            a["coupling"] += st.get("coupling_iterations", 0.0)
+    out = []
+    for k, a in acc.items():
+        sub = runs[k].model.substeps * frames
+        out.append({"setting": k, "ms_per_frame_cpu": 1e3 * a["cpu"] / frames,
+                    "ms_per_frame_wall": 1e3 * a["wall"] / frames,
+                    "pressure_ms_per_frame_cpu": 1e3 * a["pressure"] / frames,
+                    "solid_solves_per_substep": a["coupling"] / sub if a["coupling"] else 1.0})
+    return out
+
+
 def format_pressure(rows, n, repeats) -> str:
     lines = [f"pressure solve, {n}^3 cells, rtol 1e-8, median of {repeats} (interleaved)",
              f"{'solver':8} {'setup cpu s':>11} {'iters':>6} {'solve cpu s':>11} "
@@ -165,7 +215,15 @@ def main(argv=None):
     ap.add_argument("--n", type=int, default=64)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--cloth", action="store_true")
+    ap.add_argument("--cape", action="store_true")
     a = ap.parse_args(argv)
+    if a.cape:
+        for r in bench_cape():
+            print(f"cape_run, {r['setting']:24}: {r['ms_per_frame_cpu']:6.0f} ms/frame CPU, "
+                  f"{r['ms_per_frame_wall']:6.0f} wall, pressure solves "
+                  f"{r['pressure_ms_per_frame_cpu']:5.0f} ms CPU/frame, "
+                  f"{r['solid_solves_per_substep']:.2f} solid solves per substep")
+        return
     print(format_pressure(bench_pressure(a.n, a.repeats), a.n, a.repeats))
     if a.cloth:
         for r in bench_cloth(a.n):
