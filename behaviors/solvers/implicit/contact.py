@@ -41,6 +41,26 @@ from numba import njit
 
 from ...collision.narrowphase import _pt_tri_sq, _seg_seg_sq
 
+
+@njit(cache=True)
+def _friction_f0(y, eps):
+    """IPC's smoothed friction at tangential displacement y: (f0(y), f1(y) / y), with
+    f0 = -y^3 / (3 eps^2) + y^2 / eps + eps / 3 below eps and y above (energy = mu lam f0)."""
+    if y < eps:
+        return -y * y * y / (3.0 * eps * eps) + y * y / eps + eps / 3.0, 2.0 / eps - y / (eps * eps)
+    return y, 1.0 / y
+
+
+@njit(cache=True)
+def _friction_cu(y, eps, ml, irls):
+    """Coefficient of the -u u^T term of the friction Hessian block (0 for the IRLS
+    majorizer); ml = mu lam."""
+    if irls:
+        return 0.0
+    if y < eps:
+        return ml / (eps * eps * y) if y > 0.0 else 0.0
+    return ml / (y * y * y)
+
 _PLANE, _SPHERE, _CAPSULE = 0, 1, 2  # as behaviors/collision/shapes.py
 
 
@@ -190,23 +210,14 @@ def contact_energy_al(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, k
             dn = dx0 * n0 + dx1 * n1 + dx2 * n2
             u[0], u[1], u[2] = dx0 - dn * n0, dx1 - dn * n1, dx2 - dn * n2
             y = np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-            if y < eps:
-                E += ml * (-y * y * y / (3.0 * eps * eps) + y * y / eps + eps / 3.0)
-                f1y = 2.0 / eps - y / (eps * eps)  # f1(y) / y
-            else:
-                E += ml * y
-                f1y = 1.0 / y
+            f0, f1y = _friction_f0(y, eps)
+            E += ml * f0
             if mode >= 1:
                 for r in range(3):
                     grad[i, r] += ml * f1y * u[r]
             if mode >= 2:
                 b = diag[i]
-                if irls:
-                    cu = 0.0
-                elif y < eps:
-                    cu = ml / (eps * eps * y) if y > 0.0 else 0.0
-                else:
-                    cu = ml / (y * y * y)
+                cu = _friction_cu(y, eps, ml, irls)
                 for r in range(3):
                     for c in range(3):
                         p = (1.0 if r == c else 0.0) - nrm[i, s, r] * nrm[i, s, c]
@@ -356,21 +367,12 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
             u[1] -= un * n1
             u[2] -= un * n2
             y = np.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
-            if y < eps:
-                E += ml * (-y * y * y / (3.0 * eps * eps) + y * y / eps + eps / 3.0)
-                f1y = 2.0 / eps - y / (eps * eps)
-            else:
-                E += ml * y
-                f1y = 1.0 / y
+            f0, f1y = _friction_f0(y, eps)
+            E += ml * f0
             for q in range(3):
                 g[q] = ml * f1y * u[q]
             if mode >= 2:
-                if irls:
-                    cu = 0.0
-                elif y < eps:
-                    cu = ml / (eps * eps * y) if y > 0.0 else 0.0
-                else:
-                    cu = ml / (y * y * y)
+                cu = _friction_cu(y, eps, ml, irls)
                 for p in range(3):
                     for q in range(3):
                         pp = (1.0 if p == q else 0.0) - nrm[r, p] * nrm[r, q]
