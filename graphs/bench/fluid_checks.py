@@ -11,6 +11,7 @@ densities; the cost of the flag tunnel per frame. tests/test_fluid.py asserts th
 from __future__ import annotations
 
 import math
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -19,6 +20,9 @@ import numpy as np
 
 from lokigraph.api import compile_file
 from lokigraph.run import Simulation
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
+from test_fluid import FALL  # noqa: E402  (the falling patch: the test's scene, one copy)
 
 THROWN = """
 lokigraph: 1
@@ -57,23 +61,6 @@ elements:
     components:
       FluidDomain: {{simulate: true, size: [1.2, 0.4, 0.4], cell_size: 0.05, uniform: [{U}, 0, 0],
                     x_min: {{type: inflow, velocity: {U}}}, x_max: {{type: open}}}}
-"""
-
-FALL = """
-lokigraph: 1
-frames: {start: 1, end: 36, fps: 24}
-substeps: 2
-elements:
-  - name: patch
-    geometry: {generator: grid, params: {size: [0.3, 0.3], resolution: [8, 8], plane: xz,
-                                         center: [0.5, 2.7, 0.5]}}
-    components:
-      Dynamic: {mass_density: 0.05}
-      DiscreteShell: {bend_resistance: 1.0e-2}   # stiff: it falls flat
-      Drag: {model: anisotropic, normal: 0.5, tangent: 0.05}
-  - name: air
-    components:
-      FluidDomain: FLUID
 """
 
 STRAND = """
