@@ -514,8 +514,8 @@ class MacGrid:
         """Wall faces: no normal flow; inflow faces: the inflow speed along the inward
         normal; open faces are left free; faces inside a solid take its velocity."""
         if self._solid is not None:
-            for q, (blk, vals) in zip((self.u, self.v, self.w), self._blocked):
-                q[blk] = vals
+            blk = self._blocked_idx  # u, v, w are views of the flat _vel
+            self._vel[blk] = self._solid[1][blk]
         for f, arr, idx, sign in ((0, self.u, 0, 1.0), (1, self.u, -1, -1.0),
                                   (2, self.v, 0, 1.0), (3, self.v, -1, -1.0),
                                   (4, self.w, 0, 1.0), (5, self.w, -1, -1.0)):
@@ -631,7 +631,6 @@ class MacGrid:
         F = G.shape[0]
         pos = np.full((F, 4), -1, np.int64)
         coef = np.zeros((F, 4))
-        rows_of = np.repeat(np.arange(F), cnt)
         first = G.indptr[:-1]
         # faces with one cell (open boundary): (c, c); with two: (c1,c1), (c2,c2), (c1,c2), (c2,c1)
         one = cnt == 1
@@ -640,7 +639,6 @@ class MacGrid:
         g1 = np.where(cnt >= 1, G.data[np.minimum(first, max(G.nnz - 1, 0))], 0.0)
         c2 = np.where(two, G.indices[np.minimum(first + 1, max(G.nnz - 1, 0))], 0)
         g2 = np.where(two, G.data[np.minimum(first + 1, max(G.nnz - 1, 0))], 0.0)
-        del rows_of
         sel = one | two
         f = np.flatnonzero(sel)
         pos[f, 0] = np.asarray(look[c1[f], c1[f]]).ravel().astype(np.int64) - 1
@@ -663,16 +661,9 @@ class MacGrid:
         if phi.size != nf or (phi < 0).any() or (phi > 1).any():
             raise ValueError(f"solid fractions need {nf} values in [0, 1]")
         self._solid = (1.0 - phi, np.asarray(solid_velocity, np.float64).ravel())
-        # faces fully inside a solid, per component: (mask, solid velocity there)
         a, us = self._solid
         self._solid_flux = (1.0 - a) * us
-        self._blocked_idx = np.flatnonzero(a <= 0)
-        self._blocked = []
-        start = 0
-        for q in (self.u, self.v, self.w):
-            blk = (a[start:start + q.size] <= 0).reshape(q.shape)
-            self._blocked.append((blk, us[start:start + q.size].reshape(q.shape)[blk]))
-            start += q.size
+        self._blocked_idx = np.flatnonzero(a <= 0)  # faces fully inside a solid
 
     def face_centers(self):
         """Positions [m] of the u, v, w faces, flat in the order of :meth:`flat`, (F, 3)."""
@@ -737,10 +728,7 @@ class MacGrid:
         q = self._q
         gq = _mv(self.G, q, self._gq)
         np.subtract(f0, gq, out=vel)
-        if self._solid is not None:
-            blk = self._blocked_idx
-            vel[blk] = self._solid[1][blk]
-        self.apply_boundaries()
+        self.apply_boundaries()  # faces inside a solid take its velocity there
         np.multiply(q, self.density / dt, out=self.p.reshape(-1))
         s = self.stats
         s.iterations = iters
