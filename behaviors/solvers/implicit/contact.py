@@ -318,15 +318,19 @@ def start_targets(x, rows, nrm, target, coef, out):
 
 @njit(cache=True)
 def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, grad, A, diag,
-               irls, reach=0.0):
+               irls, reach, xf, nofric):
     """Penalty + lagged friction energy of the contact rows at x (see above); gradient and
     block-diagonal Hessian as ``contact_energy``. With mode 2 a row not active at x but within
     ``reach`` [m] of its target (0 <= C < reach) still writes its penalty block k n n^T: the
     Newton model then sees the contacts a step is about to close (the energy and gradient are
-    unchanged; the matrix stays positive definite, so CG and the line search apply)."""
+    unchanged; the matrix stays positive definite, so CG and the line search apply).
+    Vertices flagged ``nofric`` (compliant kinematic vertices) take no friction: their
+    displacement in the row's tangential motion u is the fixed ``xf - x0`` (their animation's
+    step), and the friction term adds no gradient or Hessian to them (the penalty does)."""
     g = np.zeros(3)
     u = np.zeros(3)
     blk = np.zeros((3, 3))
+    blf = np.zeros((3, 3))
     E = 0.0
     for r in range(rows.shape[0]):
         k = kr[r]
@@ -339,9 +343,14 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
             a = rows[r, j]
             cj = coef[r, j]
             C += cj * (x[a, 0] * n0 + x[a, 1] * n1 + x[a, 2] * n2)
-            for q in range(3):
-                u[q] += cj * (x[a, q] - x0[a, q])
+            if nofric[a]:
+                for q in range(3):
+                    u[q] += cj * (xf[a, q] - x0[a, q])
+            else:
+                for q in range(3):
+                    u[q] += cj * (x[a, q] - x0[a, q])
         blk[:, :] = 0.0
+        blf[:, :] = 0.0
         have = False
         gC = 0.0
         if C < 0.0:
@@ -376,7 +385,7 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
                 for p in range(3):
                     for q in range(3):
                         pp = (1.0 if p == q else 0.0) - nrm[r, p] * nrm[r, q]
-                        blk[p, q] += ml * f1y * pp - cu * u[p] * u[q]
+                        blf[p, q] = ml * f1y * pp - cu * u[p] * u[q]
             have = True
         if not have:
             continue
@@ -385,13 +394,14 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
             cj = coef[r, j]
             if fixed[a] or cj == 0.0:
                 continue
+            fr = 0.0 if nofric[a] else 1.0
             if mode >= 1:
-                grad[a, 0] += cj * (gC * n0 + g[0])
-                grad[a, 1] += cj * (gC * n1 + g[1])
-                grad[a, 2] += cj * (gC * n2 + g[2])
+                grad[a, 0] += cj * (gC * n0 + fr * g[0])
+                grad[a, 1] += cj * (gC * n1 + fr * g[1])
+                grad[a, 2] += cj * (gC * n2 + fr * g[2])
             if mode >= 2:
                 b = diag[a]
                 for p in range(3):
                     for q in range(3):
-                        A[b, p, q] += cj * cj * blk[p, q]
+                        A[b, p, q] += cj * cj * (blk[p, q] + fr * blf[p, q])
     return E

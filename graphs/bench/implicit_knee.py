@@ -1,0 +1,122 @@
+"""Impossible collisions with the implicit solver (issue #11): the knee, pinch and sleeve scenes
+of graphs/examples run with ``solver: implicit``; per frame the cloth-body intersecting pairs,
+the cloth's largest speed [m/s] and the Newton statistics (iterations per substep, line-search
+halvings, largest projection moves), as tests/test_knee.py, test_pinch.py, test_elbow.py
+measure them with Nucleus.
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_knee.py knee [frames] [k=v ...]
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_knee.py sleeve_pinch \
+        compliant_kinematics=energy
+
+Scenes: knee, pinch, sleeve_pinch, sleeve_elbow. Extra ``k=v`` arguments become
+``graph_overrides: {implicit_solver: {k: v}}``. Measured (largest cloth speed over the run, 0
+intersecting pairs in every frame in all of them; Newton per substep at its 20 cap in most
+frames of the moving scenes): pinch 1.74 m/s with the default compliant_kinematics: dirichlet,
+0.26 with energy (Nucleus test bound 0.3); sleeve_pinch 0.67 / 0.22 (bound 0.3, from frame 5);
+sleeve_elbow 4.7 m/s dirichlet, 9.1 energy up to frame 25 (bound 1.47); knee 4.95 m/s in frames
+8-25 dirichlet (bound 2.2), energy 7.4 m/s by frame 19 with the compliant surface drifting 1.15 m
+by frame 23.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from lokigraph.api import compile_file
+from lokigraph.behaviors.collision.intersect import intersect_meshes
+from lokigraph.run import Simulation
+
+EX = Path(__file__).resolve().parents[1] / "examples"
+#: scene -> (yaml, painted maps to copy, cloth element, body elements, default frames)
+SCENES = {
+    "knee": ("trouser_knee.yaml", (), "trouser", ("thigh", "shin", "knee"), 72),
+    "pinch": ("pinch.yaml", ("lid_soft.npy",), "cloth", ("floor", "lid"), 60),
+    "sleeve_pinch": ("sleeve_pinch.yaml", ("torso_soft.npy",), "sleeve", ("arm", "torso"), 60),
+    "sleeve_elbow": ("sleeve_elbow.yaml", ("elbow_upper_soft.npy", "elbow_forearm_soft.npy"),
+                     "sleeve", ("upper_arm", "forearm", "elbow"), 60),
+}
+
+
+def scene_text(name, overrides=None):
+    """The example's text with ``solver: implicit`` (and implicit_solver overrides)."""
+    text = (EX / SCENES[name][0]).read_text()
+    ov = ", ".join(f"{k}: {v}" for k, v in (overrides or {}).items())
+    head = "lokigraph: 1\nsolver: implicit\n"
+    if ov:
+        head += f"graph_overrides: {{implicit_solver: {{{ov}}}}}\n"
+    assert text.count("lokigraph: 1\n") == 1
+    return text.replace("lokigraph: 1\n", head, 1)
+
+
+def run(name, frames=None, overrides=None, tmp=None, verbose=False):
+    """Per frame: cloth-body pairs ``pen``, cloth self pairs ``self``, largest cloth speed
+    ``vmax`` and the frame's solver stats; ``cpu_s`` the process time of the steps."""
+    yaml, maps, cloth_name, bodies, nf = SCENES[name]
+    frames = nf if frames is None else frames
+    tmp = Path(tmp or tempfile.mkdtemp())
+    for m in maps:
+        shutil.copy(EX / m, tmp / m)
+    p = tmp / f"{name}_implicit.yaml"
+    p.write_text(scene_text(name, overrides))
+    c = compile_file(p)
+    sim = Simulation(c)
+    cl = c.scene.element(cloth_name)
+    els = [c.scene.element(b) for b in bodies]
+    out = {"pen": [], "self": [], "vmax": [], "stats": [], "finite": True}
+    cpu = 0.0
+    for _ in range(frames):
+        t0 = time.process_time()
+        st = sim.step_frame()
+        cpu += time.process_time() - t0
+        q, v = sim.state.particle_q, sim.state.particle_qd
+        out["finite"] &= bool(np.isfinite(q).all() and np.isfinite(v).all())
+        cmesh = (q[cl.vertex_slice], cl.geometry.triangles)
+        out["self"].append(intersect_meshes([cmesh], touching=False)[0])
+        pen = 0
+        for e in els:
+            _, pairs = intersect_meshes([cmesh, (q[e.vertex_slice], e.geometry.triangles)],
+                                        touching=False)
+            pen += int((pairs[:, 0] != pairs[:, 2]).sum())
+        out["pen"].append(pen)
+        out["vmax"].append(float(np.linalg.norm(v[cl.vertex_slice], axis=1).max()))
+        out["stats"].append(dict(st))
+        if verbose:
+            print(f"  frame {len(out['pen']) + 1}: pen {pen} vmax {out['vmax'][-1]:.3f} newton/sub "
+                  f"{st.get('newton_iterations', 0) / c.model.substeps:.1f} halvings "
+                  f"{st.get('line_search_halvings', 0):.0f} cpu {time.process_time() - t0:.1f}",
+                  flush=True)
+    out["cpu_s"] = cpu
+    out["substeps"] = c.model.substeps
+    return out
+
+
+def report(name, r):
+    sub = r["substeps"]
+    print(f"{name}: cpu {r['cpu_s']:.1f} s, finite {r['finite']}")
+    print(" frame  pen self   vmax  newton/sub max_newton halvings max_proj_move")
+    for i, (p, s, vm, st) in enumerate(zip(r["pen"], r["self"], r["vmax"], r["stats"])):
+        print(f" {i + 2:5d} {p:4d} {s:4d} {vm:6.3f}"
+              f" {st.get('newton_iterations', 0) / sub:10.1f}"
+              f" {st.get('max_newton_iterations', 0):10.0f}"
+              f" {st.get('line_search_halvings', 0):8.0f}"
+              f" {st.get('max_projection_move', 0.0):13.4f}")
+    vm = np.array(r["vmax"])
+    print(f"{name}: max pen {max(r['pen'])}, max self {max(r['self'])}, vmax {vm.max():.3f} "
+          f"(frame {int(vm.argmax()) + 2}), vmax from frame 8 "
+          f"{vm[6:].max() if len(vm) > 6 else 0:.3f},"
+          f" newton at cap in {sum(s.get('max_newton_iterations', 0) >= 20 for s in r['stats'])}"
+          f" frames, cpu {r['cpu_s']:.1f} s")
+
+
+if __name__ == "__main__":
+    name = sys.argv[1] if len(sys.argv) > 1 else "knee"
+    args = sys.argv[2:]
+    frames = int(args.pop(0)) if args and args[0].isdigit() else None
+    ov = dict(a.split("=", 1) for a in args)
+    report(name, run(name, frames, ov, verbose=True))
