@@ -169,7 +169,13 @@ def _excl_count(scene_file, cloth_collider, extra="", name="e.yaml", body=SPHERE
     return s.get("contacts_vf", 0) + s.get("contacts_ee", 0), sim
 
 
-def test_exclusion_levels(scene_file):
+def test_exclusion_levels(scene_file, monkeypatch):
+    # the counts are of the filtered candidate rows of each exclusion level, self rows of the
+    # resting sheet included: the space-time boxes (which drop those rows: they never come
+    # near) are off here, tests/test_collision_spacetime.py covers them
+    from lokigraph.behaviors.collision import contacts as C
+
+    monkeypatch.setattr(C, "SPACETIME", False)
     base, _ = _excl_count(scene_file, "{thickness: 0.002}", name="a.yaml")
     assert base > 0
     # type level: the cloth ignores kinematic colliders

@@ -13,6 +13,18 @@ The final safe step checks that: after the final rounds the solved motion of the
 through the narrow phase's conservative CCD (``ccd_safe_step``); pairs that would still collide
 get contacts with the normal at the time of impact, then impact zones (see the CCD section).
 
+Self pairs (``SPACETIME``): the broad phase tests the self-collision candidates of an element
+with space-time boxes (``broadphase.spacetime_boxes``: a pair is kept when, on every axis, the
+gap between the primitives' boxes at the start can be closed by their relative displacement;
+a common motion cancels, so a falling sheet is not paired with its neighbours) and never pairs
+two kinematic elements. Pairs of two elements keep every swept-box candidate: a solver
+iterate can leave the linear motion by a lot when objects push each other (the fast ball
+through a pinned cloth of ``tests/test_collisions.py`` got through with space-time boxes for
+every pair). Measured: a further gate in the filters (dropping self candidates whose start
+distance exceeds the inflations plus their vertices' largest relative displacement) saved
+nothing on top (cloth_sphere_64, per-frame CPU ratio 0.825 with it, 0.821 without) and is not
+kept.
+
 Exact culling (``CONTACT_CULL``): every detected row keeps a lower bound of its gap along its
 start normal at the detected end positions (``_cull_rows``); the projection skips a row whose
 bound, moved by its vertices' motion since, still exceeds its target, and while no vertex is
@@ -62,6 +74,13 @@ CONTACT_CULL = True
 #: CULL_REACH x (largest box inflation of any group) away from the detected end positions
 CULL_REACH = 2.0
 _CULL_TOL = 1e-9  # [m] slack over rounding in the cull bound
+#: broad phase with space-time boxes (``broadphase.spacetime_boxes``) for the self pairs of
+#: every element, and no pairs of two kinematic elements; False: swept boxes only (the
+#: former candidates, for benchmarks and tests). Measured with ``graphs/bench/
+#: collision_scaling.py --ab --sizes 64 128 --frames 16`` (1 thread, interleaved with False):
+#: median per-frame CPU ratio 0.88 at 64 x 64 (0.82 over frames 6..20 in another run), 0.58 at
+#: 128 x 128; candidate rows of the frame-12 detections at 64 x 64 3x fewer
+SPACETIME = True
 
 
 @dataclass
@@ -316,7 +335,15 @@ def _detect_group(g, x, x1, infl, v, h):
         lo_t, hi_t = bp.primitive_boxes(x, g.tris, x1, infl)
         bv = bp.build_bvh(lo_v, hi_v)
         bt = bp.build_bvh(lo_t, hi_t)
-        cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=g.buf_vf)
+        sv = st = None
+        if SPACETIME:
+            # kinematic objects never collide with each other: their subtrees are not paired
+            # and only the self pairs of an element are tested in space-time
+            ev = g.vert_elem[g.verts]
+            sv = bp.spacetime_boxes(bv, x, g.verts, x1, infl, ~g.kinematic_el[ev], ev)
+            st = bp.spacetime_boxes(bt, x, g.tris, x1, infl, ~g.kinematic_el[g.tri_elem],
+                                    g.tri_elem)
+        cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=g.buf_vf, st_a=sv, st_b=st)
         n = len(cand)
         if n:
             rows = np.zeros((n, 4), np.int64)
@@ -336,7 +363,9 @@ def _detect_group(g, x, x1, infl, v, h):
         vn = _vertex_normals(x, g) if g.one_sided.any() else np.zeros((0, 3))
         lo_e, hi_e = bp.primitive_boxes(x, g.edges, x1, infl)
         be = bp.build_bvh(lo_e, hi_e)
-        cand = bp.query_self(be, g.edges, out=g.buf_ee)
+        se = bp.spacetime_boxes(be, x, g.edges, x1, infl, ~g.kinematic_el[g.edge_elem],
+                                g.edge_elem) if SPACETIME else None
+        cand = bp.query_self(be, g.edges, out=g.buf_ee, st=se)
         n = len(cand)
         if n:
             rows = np.zeros((n, 4), np.int64)
@@ -357,13 +386,30 @@ def _vertex_normals(x, g):
     zero for vertices without triangles)."""
     n = np.zeros((len(x), 3))
     if len(g.tris):
-        P = x[g.tris]
-        fn = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
-        for k in range(3):
-            np.add.at(n, g.tris[:, k], fn)
-    ln = np.linalg.norm(n, axis=1)
-    n[ln > 0] /= ln[ln > 0][:, None]
+        _vertex_normals_kernel(x, g.tris, n)
     return n
+
+
+@njit(cache=True)
+def _vertex_normals_kernel(x, tris, n):
+    """Sum the triangles' area-weighted normals into ``n`` (corner 0 of every triangle, then
+    corner 1, then corner 2: the order of the former ``np.add.at`` per corner, so the sums are
+    bitwise those) and normalise the nonzero rows in place."""
+    for k in range(3):
+        for t in range(tris.shape[0]):
+            a, b, c = tris[t, 0], tris[t, 1], tris[t, 2]
+            e0, e1, e2 = x[b, 0] - x[a, 0], x[b, 1] - x[a, 1], x[b, 2] - x[a, 2]
+            f0, f1, f2 = x[c, 0] - x[a, 0], x[c, 1] - x[a, 1], x[c, 2] - x[a, 2]
+            v = tris[t, k]
+            n[v, 0] += e1 * f2 - e2 * f1
+            n[v, 1] += e2 * f0 - e0 * f2
+            n[v, 2] += e0 * f1 - e1 * f0
+    for i in range(n.shape[0]):
+        ln = np.sqrt(n[i, 0] ** 2 + n[i, 1] ** 2 + n[i, 2] ** 2)
+        if ln > 0:
+            n[i, 0] /= ln
+            n[i, 1] /= ln
+            n[i, 2] /= ln
 
 
 def _detect_all(d, x, x1, v, h) -> int:
@@ -1289,7 +1335,9 @@ def _rows_hold(c, x, p) -> bool:
     c.infl_min) still hold every pair that can be within its target at ``p``? Yes while no
     vertex is farther than infl_min - target_max / 2 outside its box: two primitives whose
     boxes were apart by more than twice the inflation are then still apart by more than
-    their target."""
+    their target. (With ``SPACETIME`` the self pairs of an element are those that come
+    within the inflations along the linear motion x -> c.det_ref, not every pair of
+    overlapping boxes: for them this is a heuristic.)"""
     _set_infl_min(c)
     t = 0.0
     for a in (c.vf_target, c.ee_target):
@@ -1502,13 +1550,13 @@ class PenetrationCheck(Behavior):
                     segs.append(x.geometry.edges + x.vertex_offset)
         F = np.unique(np.concatenate(tris), axis=0) if tris else np.zeros((0, 3), np.int64)
         E = np.unique(np.concatenate(segs), axis=0) if segs else None
-        return (F, E)
+        return (F, E, bp.PairBuffer(0))
 
     def frame_end(self, ctx, data):
         from .intersect import find_intersections
 
-        F, E = data
+        F, E, buf = data
         if not len(F):
             return
-        rep = find_intersections(ctx.state.particle_q, F, E, touching=False)
+        rep = find_intersections(ctx.state.particle_q, F, E, touching=False, out=buf)
         ctx.stats["penetrations"] = rep.count

@@ -14,6 +14,16 @@ the vertex count, the largest contact counts, and the intersecting triangle pair
 frame (lokigraph's PenetrationCheck, outside the timed region). The exponent p is the
 least-squares slope of log(ms per frame) against log(vertex count) (t ~ n^p) over the contact
 frames, CPU and wall.
+
+``--ab``: instead, per size, the scene with the collision pipeline's space-time boxes for self
+pairs (``contacts.SPACETIME``) off and on (the default), two simulations in this process
+stepped frame by frame in alternating order (ABBA), so machine load hits both
+alike: median CPU ms per frame of each and the median of the per-frame CPU ratio on/off over
+the contact frames, with the intersecting triangle pairs (max over frames) and the largest edge
+strain of each. Run with ``NUMBA_NUM_THREADS=1`` for CPU-time comparisons::
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/collision_scaling.py --ab --sizes 64 \
+        --frames 20
 """
 
 from __future__ import annotations
@@ -65,15 +75,95 @@ def run_size(n: int, frames: int, from_frame: int, folder: Path) -> dict:
             "finite": bool(np.isfinite(sim.state.particle_q).all()), "pairs_last_frame": pairs}
 
 
+def run_ab(n: int, frames: int, from_frame: int, folder: Path) -> dict:
+    """The scene at n x n with space-time boxes off and on, interleaved (see the module
+    docstring)."""
+    from lokigraph.behaviors.collision import contacts as C
+    from lokigraph.behaviors.collision.intersect import find_intersections
+    from lokigraph.compile import compile_scene
+    from lokigraph.run import Simulation
+    from lokigraph.scene import load_scene
+
+    text = TEMPLATE.read_text().replace("resolution: [64, 64]", f"resolution: [{n}, {n}]")
+    path = folder / f"cloth_sphere_{n}.yaml"
+    path.write_text(text)
+
+    default = C.SPACETIME
+
+    def setting(on):
+        C.SPACETIME = on
+
+    runs = {}
+    for on in (False, True):
+        setting(on)
+        sim = Simulation(compile_scene(load_scene(path)))
+        sim._steps = [b for b in sim._steps if type(b.behavior).__name__ != "PenetrationCheck"]
+        cloth = next(e for e in sim.model.elements if e.name == "cloth")
+        F = np.concatenate([e.geometry.triangles + e.vertex_offset for e in sim.model.elements
+                            if e.geometry is not None and len(e.geometry.triangles)])
+        from lokigraph.behaviors.topology import triangle_edges
+
+        E = triangle_edges(cloth.geometry.triangles) + cloth.vertex_offset
+        L0 = np.linalg.norm(np.diff(sim.state.particle_q[E], axis=1)[:, 0], axis=1)
+        runs[on] = {"sim": sim, "F": F, "E": E, "L0": L0, "cpu": [], "pairs": 0, "strain": 0.0}
+    try:
+        for f in range(frames):
+            for on in ((False, True) if f % 2 == 0 else (True, False)):
+                r = runs[on]
+                setting(on)
+                c0 = time.process_time()
+                r["sim"].step_frame()
+                r["cpu"].append(time.process_time() - c0)
+                q = r["sim"].state.particle_q
+                r["pairs"] = max(r["pairs"], int(find_intersections(q, r["F"],
+                                                                    touching=False).count))
+                L = np.linalg.norm(np.diff(q[r["E"]], axis=1)[:, 0], axis=1)
+                r["strain"] = max(r["strain"], float(((L - r["L0"]) / r["L0"]).max()))
+    finally:
+        C.SPACETIME = default
+    k = from_frame - 1
+    off, on = (np.array(runs[b]["cpu"]) for b in (False, True))
+    return {"resolution": n, "cpu_ms_off": 1e3 * float(np.median(off[k:])),
+            "cpu_ms_on": 1e3 * float(np.median(on[k:])),
+            "ratio": float(np.median(on[k:] / off[k:])),
+            "pairs_off": runs[False]["pairs"], "pairs_on": runs[True]["pairs"],
+            "strain_off": runs[False]["strain"], "strain_on": runs[True]["strain"]}
+
+
+def main_ab(args):
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in args.sizes:
+            rows.append(run_ab(n, args.frames, args.from_frame, Path(tmp)))
+    print(f"frames {args.from_frame}..{args.frames} timed (medians), space-time boxes off / "
+          "on, interleaved")
+    print("| res | CPU ms/frame off | CPU ms/frame on | median per-frame ratio on/off | "
+          "pairs off / on (max) | max strain % off / on |")
+    print("|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['resolution']} | {r['cpu_ms_off']:.0f} | {r['cpu_ms_on']:.0f} | "
+              f"{r['ratio']:.3f} | {r['pairs_off']} / {r['pairs_on']} | "
+              f"{100 * r['strain_off']:.1f} / {100 * r['strain_on']:.1f} |")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "scaling_collision_ab.json").write_text(json.dumps(
+        {"rows": rows, "argv": sys.argv[1:]}, indent=1))
+    return rows
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[32, 64, 128, 256])
     ap.add_argument("--frames", type=int, default=12)
     ap.add_argument("--from-frame", type=int, default=6, help="first contact frame timed")
     ap.add_argument("--out", default="bench_out/scaling_collision")
+    ap.add_argument("--ab", action="store_true", help="space-time boxes off vs on, "
+                    "interleaved (see the module docstring)")
     args = ap.parse_args(argv)
     if not 2 <= args.from_frame <= args.frames:
         ap.error("--from-frame must be in 2..--frames")
+    if args.ab:
+        return main_ab(args)
     import numba
 
     rows = []
