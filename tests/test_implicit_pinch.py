@@ -15,6 +15,7 @@ from conftest import EXAMPLES
 from lokigraph.api import compile_file
 from lokigraph.behaviors.collision.intersect import intersect_meshes
 from lokigraph.run import Simulation
+from test_pinch import sleeve_pinch_run
 
 
 def _pinch_implicit(tmp_path, overrides="compliant_kinematics: energy", frames=60):
@@ -75,20 +76,7 @@ def test_implicit_sleeve_pinch_example(tmp_path):
     text = (EXAMPLES / "sleeve_pinch.yaml").read_text().replace(
         "lokigraph: 1\n", "lokigraph: 1\nsolver: implicit\ngraph_overrides: {implicit_solver: "
         "{compliant_kinematics: energy}}\n", 1)
-    shutil.copy(EXAMPLES / "torso_soft.npy", tmp_path / "torso_soft.npy")
-    p = tmp_path / "sleeve.yaml"
-    p.write_text(text)
-    c = compile_file(p)
-    sim = Simulation(c)
-    els = [c.scene.element(n) for n in ("sleeve", "arm", "torso")]
-    vmax, pen = [], []
-    for _ in range(60):
-        sim.step_frame()
-        q, v = sim.state.particle_q, sim.state.particle_qd
-        assert np.isfinite(q).all()
-        vmax.append(np.linalg.norm(v[els[0].vertex_slice], axis=1).max())
-        pen.append(intersect_meshes([(q[e.vertex_slice], e.geometry.triangles) for e in els],
-                                    touching=False)[0])
+    vmax, pen = sleeve_pinch_run(tmp_path, text)
     print(f"implicit sleeve_pinch: max speed {max(vmax[3:]):.3f} m/s, intersections {max(pen)}")
     assert max(vmax[3:]) < 0.3
     assert max(pen) == 0

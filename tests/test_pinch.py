@@ -80,6 +80,27 @@ def test_compliant_recession_independent_of_substeps(tmp_path):
     assert a[23] > 0.006 and b[23] > 0.006
 
 
+def sleeve_pinch_run(tmp_path, text, frames=60):
+    """Run the sleeve_pinch scene ``text`` (its torso map copied beside it) for ``frames``
+    frames, asserting finite positions; returns the sleeve's largest speed [m/s] and the
+    intersecting pairs of sleeve, arm and torso, per frame."""
+    shutil.copy(EXAMPLES / "torso_soft.npy", tmp_path / "torso_soft.npy")
+    p = tmp_path / "sleeve.yaml"
+    p.write_text(text)
+    c = compile_file(p)
+    sim = Simulation(c)
+    els = [c.scene.element(n) for n in ("sleeve", "arm", "torso")]
+    vmax, pen = [], []
+    for _ in range(frames):
+        sim.step_frame()
+        q, v = sim.state.particle_q, sim.state.particle_qd
+        assert np.isfinite(q).all()
+        vmax.append(np.linalg.norm(v[els[0].vertex_slice], axis=1).max())
+        pen.append(intersect_meshes([(q[e.vertex_slice], e.geometry.triangles) for e in els],
+                                    touching=False)[0])
+    return vmax, pen
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("mechanisms", [True, False])
 def test_sleeve_pinch_example(tmp_path, mechanisms):
@@ -88,25 +109,12 @@ def test_sleeve_pinch_example(tmp_path, mechanisms):
     intersections in every frame (measured max 0.16 m/s). Without them (no compliance,
     proximity tolerance off) the numbers are reported by the test output."""
     text = (EXAMPLES / "sleeve_pinch.yaml").read_text()
-    shutil.copy(EXAMPLES / "torso_soft.npy", tmp_path / "torso_soft.npy")
     if not mechanisms:
         text = text.replace("        stiffness: soft\n", "").replace(
             "methods: [vertex_face, edge_edge]}",
             'methods: [vertex_face, edge_edge], proximity_tolerant: "off", '
             'recover_crossings: false}')
-    p = tmp_path / "sleeve.yaml"
-    p.write_text(text)
-    c = compile_file(p)
-    sim = Simulation(c)
-    els = [c.scene.element(n) for n in ("sleeve", "arm", "torso")]
-    vmax, pen = [], []
-    for _ in range(60):
-        sim.step_frame()
-        q, v = sim.state.particle_q, sim.state.particle_qd
-        assert np.isfinite(q).all()
-        vmax.append(np.linalg.norm(v[els[0].vertex_slice], axis=1).max())
-        pen.append(intersect_meshes([(q[e.vertex_slice], e.geometry.triangles) for e in els],
-                                    touching=False)[0])
+    vmax, pen = sleeve_pinch_run(tmp_path, text)
     print(f"mechanisms={mechanisms}: max speed {max(vmax[3:]):.3f} m/s, max intersections "
           f"{max(pen)}, intersections after reopening {max(pen[50:])}")
     if mechanisms:
