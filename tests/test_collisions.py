@@ -113,13 +113,8 @@ def test_fast_sphere_does_not_tunnel(scene_file):
                                    touching=False)
         assert not (rows[:, 0] != rows[:, 2]).any()  # no cloth-ball intersection
         centre = q[ball.vertex_slice].mean(0)
-        # the cloth is always in front of the ball: its centre vertex lies beyond the ball, by
-        # at least the ball's smallest radius now (the shape-matched ball flattens against the
-        # cloth at one substep: nearest vertex to its centroid measured 52 mm at least, and
-        # 9 mm against the inextensible cloth of the long-range rows and strain limit, so its
-        # rest radius is no bound; measured margin over that radius >= 5 mm in every frame)
-        r_min = np.linalg.norm(q[ball.vertex_slice] - centre, axis=1).min()
-        assert q[cl.vertex_slice][312, 2] < centre[2] - r_min
+        # the cloth is always in front of the ball: its centre vertex lies beyond the ball
+        assert q[cl.vertex_slice][312, 2] < centre[2] - 0.09
     # the inextensible cloth, pinned at its corners at rest distance, is taut: it stops the ball
     assert np.linalg.norm(sim.state.particle_qd[ball.vertex_slice].mean(0)) < 20.0
     assert centre[2] > 0.0

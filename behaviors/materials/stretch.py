@@ -4,8 +4,8 @@ edges, with separate stretch and compression compliance and optional stretch dam
 :class:`StretchConstraint` packs the edges of all bound elements at bind; the XPBD kernels below
 project them (conventions in :mod:`lokigraph.behaviors.solvers.nucleus.xpbd`). Stitches
 (:mod:`lokigraph.behaviors.attachments.stitch`) reuse the same edge projection. Inextensible
-cloth adds hierarchical long-range rows and extra edge sweeps (``long_range_levels``,
-``sweeps``; see the section comment before the behavior and the parameters)."""
+cloth can add hierarchical long-range rows and extra edge sweeps (``long_range_levels``,
+``sweeps``; opt-in, see the section comment before the behavior and the parameters)."""
 
 from __future__ import annotations
 
@@ -315,44 +315,28 @@ def _project_edges(ctx, d, p):
 
 
 class StretchParams(ConstraintParams):
-    long_range_levels: int = Field(5, ge=0, le=16, description="Hierarchical long-range rows "
+    long_range_levels: int = Field(0, ge=0, le=16, description="Hierarchical long-range rows "
                                    "of inextensible DiscreteShell cloth (see the module's "
                                    "section comment): along every straight line of edges, "
                                    "vertices 2, 4, ..., 2^levels edges apart stay within the "
-                                   "rest length of the line between them; 0 = off. Measured at "
-                                   "5 levels (default) and 3 sweeps, worst-frame edge strain "
+                                   "rest length of the line between them; 0 = off (default). "
+                                   "Measured at 5 levels and 3 sweeps, worst-frame edge strain "
                                    "over 24 frames, off -> on: cloth_on_sphere 184 -> 26 %, "
                                    "cloth_pinned 10.2 -> 2.0 %, flag_wind 17.1 -> 6.1 %, "
-                                   "skirt_walk 8.0 -> 6.6 %; sleeve_elbow (a pinch) 95 -> 99 %; "
-                                   "with the inextensible strain limit as well (the defaults, "
-                                   "strain_limit.inextensible_max_strain): cloth_on_sphere "
-                                   "7.5 %, flag_wind 5.0 %, skirt_walk 5.0 %, sleeve_elbow "
-                                   "20.7 %. Without that limit's joint passes the final "
-                                   "collision rounds run 4 contact passes, too few against the "
-                                   "rows: the stress projectile then ends with a ball vertex "
-                                   "0.9 um past a cloth triangle, which the CCD safe step does "
-                                   "not flag (6 crossing pairs kept; 0 with "
-                                   "collisions.final_iterations 10).")
-    sweeps: int = Field(3, ge=1, le=100, description="Edge sweeps per stretch pass when the "
-                        "set holds inextensible cloth (default 3; other sets always 1). "
+                                   "skirt_walk 8.0 -> 6.6 %; sleeve_elbow (a pinch) 95 -> 99 %. "
+                                   "Opt-in: vertices then move beyond the envelope their "
+                                   "contacts were detected for (the stress projectile ends with "
+                                   "6 cloth-ball crossings) unless collisions.redetect is on, "
+                                   "which costs 2.3x on cloth_on_sphere; and three collision "
+                                   "tests change outcome (fast ball rebound timing, a gap median "
+                                   "on a box, a pinch recession across substeps).")
+    sweeps: int = Field(1, ge=1, le=100, description="Edge sweeps per stretch pass when the "
+                        "set holds inextensible cloth (1 = default; other sets always 1). "
                         "Edges are cheap next to contacts; more sweeps carry corrections "
                         "farther per iteration (cloth_on_sphere with 5 long-range levels, 1 -> "
                         "3 sweeps: 47 -> 26 %). Cost of 5 levels + 3 sweeps, CPU ms/frame "
                         "before -> after in one run: 534 -> 482 on the 64 x 64 drop (fewer "
                         "active contacts), 15 -> 30 on cloth_pinned (32 x 32, no contacts).")
-    joint_long_range: bool = Field(False, description="Project the long-range rows also in "
-                                   "every joint pass of the final collision rounds and of the "
-                                   "CCD rounds (before the strain limits and the contacts), "
-                                   "where they carry the strain limit's corrections across "
-                                   "the sheet. Off by default: it pays with more joint passes "
-                                   "only. Measured (graphs/bench/cloth_strain.py, worst frame "
-                                   "of 24, CPU ms/frame beside the defaults in one run): with "
-                                   "strain_limit.inextensible_joint_iterations 40 "
-                                   "and inextensible_max_strain 0.02 cloth_on_sphere 7.5 -> 3.8 % "
-                                   "(492 -> 759 ms), sleeve_elbow 20.7 -> 3.2 % (242 -> 318), "
-                                   "skirt_walk 5.0 -> 2.0 % (54 -> 56); at 10 joint passes it "
-                                   "helps the sleeve (20.7 -> 12.6 %) and not the drop (7.5 -> "
-                                   "9.8 %).")
 
 
 @dataclass
@@ -451,23 +435,6 @@ class StretchConstraint(ConstraintBehavior):
                ctx.dt, lr.color_ptr)
         for _ in range(d.sweeps):
             _project_edges(ctx, d, p)
-
-    def project_joint(self, ctx, d, p):
-        """Called by the final collision rounds and the CCD rounds before the strain limits
-        and the contacts of every joint pass (``joint_long_range``): the long-range rows only
-        (unilateral, consistent with any strain limit >= 0); the edges stay out (hard and
-        bilateral, they would fight the contacts)."""
-        lr = d.long_range if d is not None else None
-        if lr is not None and self.params.joint_long_range:
-            fn = project_stretch_seq if lr.sequential else project_stretch
-            fn(p, ctx.model.particle_inv_mass, lr.idx, lr.rest, lr.alpha, lr.alpha2, lr.lam,
-               ctx.dt, lr.color_ptr)
-
-    def joint_iterations(self) -> int:
-        return 0  # the strain limits and the collision parameters set the joint passes
-
-    def satisfied(self, ctx, d, p) -> bool:
-        return True  # the strain limits judge the edges
 
     def residual(self, ctx, d, p):
         return float(residual_stretch(p, d.idx, d.rest)[0])
