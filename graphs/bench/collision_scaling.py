@@ -16,7 +16,7 @@ least-squares slope of log(ms per frame) against log(vertex count) (t ~ n^p) ove
 frames, CPU and wall.
 
 ``--ab``: instead, per size, the scene with the collision pipeline's space-time boxes for self
-pairs (``contacts.SPACETIME``) off and on (the default), two simulations in this process
+pairs (``contacts.SPACETIME``) off (the default) and on, two simulations in this process
 stepped frame by frame in alternating order (ABBA), so machine load hits both
 alike: median CPU ms per frame of each and the median of the per-frame CPU ratio on/off over
 the contact frames, with the intersecting triangle pairs (max over frames) and the largest edge
