@@ -6,16 +6,10 @@ zero gap between two Dirichlet surfaces and thrown out of the pinch (measured 1.
 frame 27).
 Scenes and figures: graphs/bench/implicit_knee.py."""
 
-import shutil
-
-import numpy as np
 import pytest
 
 from conftest import EXAMPLES
-from lokigraph.api import compile_file
-from lokigraph.behaviors.collision.intersect import intersect_meshes
-from lokigraph.run import Simulation
-from test_pinch import sleeve_pinch_run
+from test_pinch import pinch_run, sleeve_pinch_run
 
 
 def _pinch_implicit(tmp_path, overrides="compliant_kinematics: energy", frames=60):
@@ -24,29 +18,7 @@ def _pinch_implicit(tmp_path, overrides="compliant_kinematics: energy", frames=6
     if overrides:
         head += f"graph_overrides: {{implicit_solver: {{{overrides}}}}}\n"
     text = text.replace("lokigraph: 1\n", head, 1)
-    shutil.copy(EXAMPLES / "lid_soft.npy", tmp_path / "lid_soft.npy")
-    p = tmp_path / "pinch_implicit.yaml"
-    p.write_text(text)
-    c = compile_file(p)
-    sim = Simulation(c)
-    cl, fl, lid = (c.scene.element(n) for n in ("cloth", "floor", "lid"))
-    comp = c.model.particle_compliant[lid.vertex_slice]
-    out = {"vmax": [], "pen": [], "follow": [], "recede": [], "newton": [], "finite": True}
-    for _ in range(frames):
-        st = sim.step_frame()
-        q, v = sim.state.particle_q, sim.state.particle_qd
-        out["finite"] &= bool(np.isfinite(q).all() and np.isfinite(v).all())
-        out["vmax"].append(np.linalg.norm(v[cl.vertex_slice], axis=1).max())
-        n, _ = intersect_meshes([(q[cl.vertex_slice], cl.geometry.triangles),
-                                 (q[fl.vertex_slice], fl.geometry.triangles),
-                                 (q[lid.vertex_slice], lid.geometry.triangles)], touching=False)
-        out["pen"].append(n)
-        anim = sim.control.kinematic_q[lid.vertex_slice]
-        ql = q[lid.vertex_slice]
-        out["follow"].append(np.abs(ql[~comp] - anim[~comp]).max())
-        out["recede"].append((ql[comp, 1] - anim[comp, 1]).max())
-        out["newton"].append(st.get("newton_iterations", 0) / c.model.substeps)
-    return {k: np.array(v) if isinstance(v, list) else v for k, v in out.items()}
+    return pinch_run(tmp_path, text, "pinch_implicit.yaml", frames)
 
 
 def test_implicit_pinch_is_calm_and_recovers(tmp_path):
