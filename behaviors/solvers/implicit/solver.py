@@ -114,6 +114,7 @@ from lokigraph.components.colliders import ShapeCollider
 from lokigraph.components.core import Dynamic
 from lokigraph.errors import InputError
 
+from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
 from .contact import (contact_energy_al, lag_contacts_al, lag_rows, row_energy, safety_project,
                       start_targets, update_contact_multipliers)
@@ -522,7 +523,7 @@ class ImplicitSolver(Behavior):
         kin = m.particle_kinematic
         if kin.any():
             xt[kin] = ctl.kinematic_q[kin]
-        if d.comp_idx is not None:
+        if d.comp_idx is not None and _tangential_ratio(self) > 0.0:  # only 'hard' reads them
             self._compliant_normals(d, ctl.kinematic_q)
         xs = w["xs"]
         xs[:] = xt  # initial guess: the inertial prediction (exact for free particles)
@@ -655,16 +656,11 @@ class ImplicitSolver(Behavior):
 
     @staticmethod
     def _compliant_normals(d, q):
-        """Area-weighted vertex normals of the animated pose ``q`` at the compliant vertices."""
-        t = d.comp_tris
-        fn = np.cross(q[t[:, 1]] - q[t[:, 0]], q[t[:, 2]] - q[t[:, 0]])
+        """Area-weighted vertex normals of the animated pose ``q`` at the compliant vertices
+        (the collision pipeline's normal kernel)."""
         vn = np.zeros((len(q), 3))
-        for j in range(3):
-            np.add.at(vn, t[:, j], fn)
-        cn = vn[d.comp_idx]
-        ln = np.linalg.norm(cn, axis=1)
-        d.comp_nrm[:] = np.where(ln[:, None] > 0.0, cn / np.where(ln > 0.0, ln, 1.0)[:, None],
-                                 0.0)
+        _vertex_normals_kernel(q, d.comp_tris, vn)
+        d.comp_nrm[:] = vn[d.comp_idx]
 
     def _set_fixed(self, d, fixed):
         """The Dirichlet set of the next Newton solve (blocks to clear, diagonals to set)."""
