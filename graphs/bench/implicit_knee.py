@@ -9,13 +9,28 @@ measure them with Nucleus.
         compliant_kinematics=energy
 
 Scenes: knee, pinch, sleeve_pinch, sleeve_elbow. Extra ``k=v`` arguments become
-``graph_overrides: {implicit_solver: {k: v}}``. Measured (largest cloth speed over the run, 0
-intersecting pairs in every frame in all of them; Newton per substep at its 20 cap in most
-frames of the moving scenes): pinch 1.74 m/s with the default compliant_kinematics: dirichlet,
-0.26 with energy (Nucleus test bound 0.3); sleeve_pinch 0.67 / 0.22 (bound 0.3, from frame 5);
-sleeve_elbow 4.7 m/s dirichlet, 9.1 energy up to frame 25 (bound 1.47); knee 4.95 m/s in frames
-8-25 dirichlet (bound 2.2), energy 7.4 m/s by frame 19 with the compliant surface drifting 1.15 m
-by frame 23.
+``graph_overrides: {implicit_solver: {k: v}}``. Columns: intersecting cloth-body pairs, cloth
+self pairs, largest cloth speed [m/s], Newton iterations per substep (mean, largest), line-search
+halvings, the projection pass's largest move [m] and the contact rows' normal complementarity
+residual at the Newton solution (``max_complementarity`` [mm]).
+
+Measured with the default hard_multipliers: converged / hard_multipliers=always (the update
+after every substep, before; bitwise the same results as before it existed), largest cloth
+speed, CPU per frame from frame 4 on the shared 2-core machine (NUMBA_NUM_THREADS=1), Newton
+at its 20 cap in most frames of every moving scene with both:
+
+    knee (25 frames, bound 2.2 from frame 8)   2.19 m/s, 0.97 s / 4.95 m/s, 1.35 s
+    sleeve_elbow (25 frames, bound 1.47)       1.08 m/s, 0.77 s / 4.67 m/s, 0.99 s
+    pinch (60 frames, bound 0.3 from frame 5)  0.32 m/s, 0.22 s / 1.74 m/s, 0.28 s
+    sleeve_pinch (60 frames, bound 0.3)        0.43 m/s, 0.50 s / 0.67 m/s, 0.66 s
+
+Whole runs (converged / always): knee (72 frames) 2.32 m/s at frame 56 (1.57 in frames 38-49,
+bound 1.65 there) / 6.19 m/s at frame 27, 1.05 / 1.55 s per frame; sleeve_elbow (60 frames)
+1.69 m/s at frame 42 / 4.67 m/s, 0.74 / 1.15 s per frame: both still above their Nucleus bounds
+after the bend. 0 intersecting pairs in every frame of all of these. With
+compliant_kinematics=energy (converged / always): pinch 0.267 / 0.262 m/s, sleeve_pinch 0.207 /
+0.217 m/s from frame 8, sleeve_elbow 4.93 m/s (25 frames) / 9.1 m/s, knee 1.72 m/s but 10
+trouser-leg pairs at frame 24 / 7.4 m/s by frame 19.
 """
 
 from __future__ import annotations
@@ -99,13 +114,14 @@ def run(name, frames=None, overrides=None, tmp=None, verbose=False):
 def report(name, r):
     sub = r["substeps"]
     print(f"{name}: cpu {r['cpu_s']:.1f} s, finite {r['finite']}")
-    print(" frame  pen self   vmax  newton/sub max_newton halvings max_proj_move")
+    print(" frame  pen self   vmax  newton/sub max_newton halvings max_proj_move compl_mm")
     for i, (p, s, vm, st) in enumerate(zip(r["pen"], r["self"], r["vmax"], r["stats"])):
         print(f" {i + 2:5d} {p:4d} {s:4d} {vm:6.3f}"
               f" {st.get('newton_iterations', 0) / sub:10.1f}"
               f" {st.get('max_newton_iterations', 0):10.0f}"
               f" {st.get('line_search_halvings', 0):8.0f}"
-              f" {st.get('max_projection_move', 0.0):13.4f}")
+              f" {st.get('max_projection_move', 0.0):13.4f}"
+              f" {1000 * st.get('max_complementarity', 0.0):8.3f}")
     vm = np.array(r["vmax"])
     print(f"{name}: max pen {max(r['pen'])}, max self {max(r['self'])}, vmax {vm.max():.3f} "
           f"(frame {int(vm.argmax()) + 2}), vmax from frame 8 "
