@@ -13,17 +13,26 @@ The final safe step checks that: after the final rounds the solved motion of the
 through the narrow phase's conservative CCD (``ccd_safe_step``); pairs that would still collide
 get contacts with the normal at the time of impact, then impact zones (see the CCD section).
 
-Self pairs (``SPACETIME``, off by default: see the flag): with it the broad phase tests the self-collision candidates of an element
-with space-time boxes (``broadphase.spacetime_boxes``: a pair is kept when, on every axis, the
-gap between the primitives' boxes at the start can be closed by their relative displacement;
-a common motion cancels, so a falling sheet is not paired with its neighbours) and never pairs
-two kinematic elements. Pairs of two elements keep every swept-box candidate: a solver
-iterate can leave the linear motion by a lot when objects push each other (the fast ball
-through a pinned cloth of ``tests/test_collisions.py`` got through with space-time boxes for
-every pair). Measured: a further gate in the filters (dropping self candidates whose start
-distance exceeds the inflations plus their vertices' largest relative displacement) saved
-nothing on top (cloth_sphere_64, per-frame CPU ratio 0.825 with it, 0.821 without) and is not
-kept.
+Self pairs (``SPACETIME``, see the flag): the detections over a *known* motion, those of the
+final rounds and of the CCD safe step (x -> the solved iterate), test the self-collision
+candidates of an element with space-time boxes (``broadphase.spacetime_boxes``: a pair is kept
+when, on every axis, the gap between the primitives' boxes at the start can be closed by their
+relative displacement; a common motion cancels, so a falling sheet is not paired with its
+neighbours) and never pair two kinematic elements. The detection over the *predicted* motion
+(``CollisionDetect``, whose rows the iterations project) keeps the swept boxes
+(``SPACETIME_PREDICTED``): the iterate leaves the predicted motion (a vertex stopped by a
+contact while its neighbours move on), and the swept boxes hold every vertex anywhere on its
+own path. Pairs of two elements keep every swept-box candidate: a solver iterate can leave the
+linear motion by a lot when objects push each other (the fast ball through a pinned cloth of
+``tests/test_collisions.py`` got through with space-time boxes for every pair). Measured: a
+further gate in the filters (dropping self candidates whose start distance exceeds the
+inflations plus their vertices' largest relative displacement) saved nothing on top
+(cloth_sphere_64, per-frame CPU ratio 0.825 with it, 0.821 without) and is not kept. Nor is
+a second final round that keeps the first one's candidates while no vertex moved more than
+the inflation less half the largest target since (it held in 12 of the 15 second rounds of
+cloth_sphere_64 frames 8-15; 0.97x CPU): the rows and their order differ from a fresh
+detection's, and the slow elbow test then threw the sleeve out of the crease at 1.11 m/s
+(frame 35).
 
 Exact culling (``CONTACT_CULL``): every detected row keeps a lower bound of its gap along its
 start normal at the detected end positions (``_cull_rows``); the projection skips a row whose
@@ -74,19 +83,31 @@ CONTACT_CULL = True
 #: CULL_REACH x (largest box inflation of any group) away from the detected end positions
 CULL_REACH = 2.0
 _CULL_TOL = 1e-9  # [m] slack over rounding in the cull bound
-#: broad phase with space-time boxes (``broadphase.spacetime_boxes``) for the self pairs of
-#: every element, and no pairs of two kinematic elements; False: swept boxes only (the
-#: former candidates, for benchmarks and tests). Measured with ``graphs/bench/
-#: collision_scaling.py --ab --sizes 64 128 --frames 16`` (1 thread, interleaved with False):
-#: median per-frame CPU ratio 0.88 at 64 x 64 (0.82 over frames 6..20 in another run), 0.58 at
-#: 128 x 128; candidate rows of the frame-12 detections at 64 x 64 3x fewer. Off by default:
-#: the test is exact for the predicted motion x -> x1 only, and the iterations move vertices
-#: farther from it than the inflation (a vertex stopped by a contact while its neighbour keeps
-#: falling), so pairs the swept boxes kept are missing from the iterations until the final
-#: rounds or the CCD find them. Measured with it on: the slow test_sleeve_elbow_with_mechanisms
-#: throws the sleeve out of the crease at 0.89 m/s (frame 33) against its 0.73 m/s bound
-#: (0.65 with it off); no intersections either way
-SPACETIME = False
+#: space-time boxes (``broadphase.spacetime_boxes``) for the self pairs of every element, and no
+#: pairs of two kinematic elements, in the detections over a known motion: the final rounds'
+#: and the CCD safe step's (x -> the solved iterate p). Exact there: the final rounds project
+#: from p, and the CCD needs the pairs that come within its distance along x -> p, which the
+#: space-time test keeps. False: swept boxes in every detection (the former candidates, for
+#: benchmarks and tests). Measured with ``graphs/bench/collision_scaling.py --ab --sizes 64 128
+#: --frames 16 --from-frame 6`` (1 thread, interleaved with False): median per-frame CPU ratio
+#: 0.85-0.92 at 64 x 64 (three runs), 0.81-0.83 at 128 x 128 (two runs), no intersections
+#: either way; positions bitwise those with False over the 23 frames of cloth_sphere_64 and
+#: the 60 of the slow test_sleeve_elbow_with_mechanisms (the rows it drops never activate in
+#: the final rounds or the CCD there; at 128 x 128 they differ)
+SPACETIME = True
+#: space-time boxes also in the detection over the *predicted* motion x -> x1 (the rows the
+#: iterations project). Off: that test is exact for the predicted motion only, and the iterate
+#: leaves it by more than the inflation (a vertex stopped by a contact while its neighbour keeps
+#: falling; on cloth_sphere_64 the iterate at the end of the iterations lies up to 26 mm outside
+#: the boxes of the predicted motion), so pairs the swept boxes keep are missing from the
+#: iterations. Measured with it on: in the slow test_sleeve_elbow_with_mechanisms the rows it
+#: dropped became active in 13-32 of the 32 contact passes of each of frames 21-34 (none in the
+#: final rounds), and the sleeve was thrown out of the crease at 0.89 m/s (frame 33) against its
+#: 0.73 m/s bound (0.65 with it off); ``tests/test_collision_spacetime.py`` builds that case
+#: (1,114 pairs within their target at the iterate missing). It would save more: ``--ab
+#: --ab-mode all --ab-ref known`` gives 0.92x (64 x 64) and 0.62x (128 x 128) of the CPU with
+#: ``SPACETIME`` alone
+SPACETIME_PREDICTED = False
 
 
 @dataclass
@@ -302,7 +323,7 @@ class CollisionDetect(Behavior):
         kin = m.particle_kinematic
         if kin.any():
             x1[kin] = ctx.control.kinematic_q[kin]
-        tolerant = _detect_all(d, x, x1, st.particle_qd, h)
+        tolerant = _detect_all(d, x, x1, st.particle_qd, h, SPACETIME_PREDICTED)
         d.tolerant_count = tolerant
         ctx.stats["contacts_vf"] = ctx.stats.get("contacts_vf", 0) + len(d.vf)
         ctx.stats["contacts_ee"] = ctx.stats.get("contacts_ee", 0) + len(d.ee)
@@ -331,7 +352,7 @@ class CollisionDetect(Behavior):
                          f"{len(g.edges)} edges" for g in d.groups)
 
 
-def _detect_group(g, x, x1, infl, v, h):
+def _detect_group(g, x, x1, infl, v, h, spacetime=False):
     vf = (np.zeros((0, 4), np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
           np.zeros(0, np.bool_), g.strength)
     ee = (np.zeros((0, 4), np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0), g.strength)
@@ -342,7 +363,7 @@ def _detect_group(g, x, x1, infl, v, h):
         bv = bp.build_bvh(lo_v, hi_v)
         bt = bp.build_bvh(lo_t, hi_t)
         sv = st = None
-        if SPACETIME:
+        if spacetime:
             # kinematic objects never collide with each other: their subtrees are not paired
             # and only the self pairs of an element are tested in space-time
             ev = g.vert_elem[g.verts]
@@ -370,7 +391,7 @@ def _detect_group(g, x, x1, infl, v, h):
         lo_e, hi_e = bp.primitive_boxes(x, g.edges, x1, infl)
         be = bp.build_bvh(lo_e, hi_e)
         se = bp.spacetime_boxes(be, x, g.edges, x1, infl, ~g.kinematic_el[g.edge_elem],
-                                g.edge_elem) if SPACETIME else None
+                                g.edge_elem) if spacetime else None
         cand = bp.query_self(be, g.edges, out=g.buf_ee, st=se)
         n = len(cand)
         if n:
@@ -418,9 +439,10 @@ def _vertex_normals_kernel(x, tris, n):
             n[i, 2] /= ln
 
 
-def _detect_all(d, x, x1, v, h) -> int:
+def _detect_all(d, x, x1, v, h, spacetime=False) -> int:
     """Detect and pack the contacts of every group for the motion x -> x1; returns the number
-    of proximity-tolerant contacts."""
+    of proximity-tolerant contacts. ``spacetime``: test the self pairs of every element with
+    space-time boxes (exact for the linear motion x -> x1 only: see ``SPACETIME``)."""
     vf_all, ee_all = [], []
     tolerant = 0
     for g in d.groups:  # loop over groups, not primitives
@@ -431,7 +453,7 @@ def _detect_all(d, x, x1, v, h) -> int:
         if g.recover.any():
             recent = (g.crossed >= g.stamp - SIDE_MEMORY).any(axis=1)
             infl[recent] *= 4.0
-        vf, ee, t = _detect_group(g, x, x1, infl, v, h)
+        vf, ee, t = _detect_group(g, x, x1, infl, v, h, spacetime)
         vf_all.append(vf)
         ee_all.append(ee)
         tolerant += t
@@ -1341,9 +1363,9 @@ def _rows_hold(c, x, p) -> bool:
     c.infl_min) still hold every pair that can be within its target at ``p``? Yes while no
     vertex is farther than infl_min - target_max / 2 outside its box: two primitives whose
     boxes were apart by more than twice the inflation are then still apart by more than
-    their target. (With ``SPACETIME`` the self pairs of an element are those that come
-    within the inflations along the linear motion x -> c.det_ref, not every pair of
-    overlapping boxes: for them this is a heuristic.)"""
+    their target. The rows it is asked about (``CollisionDetect``'s and the iterations' own
+    detections) come from swept boxes; for space-time rows (``SPACETIME_PREDICTED``) it would
+    be a heuristic: a missing self pair is only far apart along the linear motion."""
     _set_infl_min(c)
     t = 0.0
     for a in (c.vf_target, c.ee_target):
@@ -1375,7 +1397,7 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
 
     def hits(detect=True):
         if detect:
-            _detect_all(c, x, p, v, h)
+            _detect_all(c, x, p, v, h, SPACETIME)
             st["ccd_detections"] = st.get("ccd_detections", 0) + 1
         hv = _ccd_hits(work, c.vf, c.vf_n, c.vf_target, True, x, p, frac)
         he = _ccd_hits(work, c.ee, c.ee_n, c.ee_target, False, x, p, frac)
@@ -1493,7 +1515,7 @@ class CollisionConstraint(ConstraintBehavior):
         n_it = max([self.params.final_iterations] + [b.joint_iterations() for b, _ in joint])
         c.det_ref = c.x1  # the rows come from the detection of CollisionDetect.step
         for _ in range(self.params.final_rounds):
-            _detect_all(c, x, p, ctx.state.particle_qd, ctx.dt)
+            _detect_all(c, x, p, ctx.state.particle_qd, ctx.dt, SPACETIME)
             if c.p_det is None:
                 c.p_det = np.empty_like(p)
             c.p_det[:] = p

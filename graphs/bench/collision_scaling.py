@@ -16,7 +16,10 @@ least-squares slope of log(ms per frame) against log(vertex count) (t ~ n^p) ove
 frames, CPU and wall.
 
 ``--ab``: instead, per size, the scene with the collision pipeline's space-time boxes for self
-pairs (``contacts.SPACETIME``) off (the default) and on, two simulations in this process
+pairs off (``--ab-ref``, default ``off``: swept boxes in every detection) and on (``--ab-mode``:
+``known``, the detections over a known motion, i.e. the final rounds and the CCD safe step, as
+``contacts.SPACETIME``; ``all``, the detection over the predicted motion too,
+``contacts.SPACETIME_PREDICTED``), two simulations in this process
 stepped frame by frame in alternating order (ABBA), so machine load hits both
 alike: median CPU ms per frame of each and the median of the per-frame CPU ratio on/off over
 the contact frames, with the intersecting triangle pairs (max over frames) and the largest edge
@@ -75,9 +78,15 @@ def run_size(n: int, frames: int, from_frame: int, folder: Path) -> dict:
             "finite": bool(np.isfinite(sim.state.particle_q).all()), "pairs_last_frame": pairs}
 
 
-def run_ab(n: int, frames: int, from_frame: int, folder: Path) -> dict:
-    """The scene at n x n with space-time boxes off and on, interleaved (see the module
-    docstring)."""
+#: settings of ``--ab``: (contacts.SPACETIME, contacts.SPACETIME_PREDICTED)
+AB_SETTINGS = {"off": (False, False), "known": (True, False), "all": (True, True)}
+_FLAGS = ("SPACETIME", "SPACETIME_PREDICTED")
+
+
+def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "known",
+           ref: str = "off") -> dict:
+    """The scene at n x n with the space-time setting ``ref`` (as "off") and ``mode`` (as
+    "on"), interleaved (see the module docstring)."""
     from lokigraph.behaviors.collision import contacts as C
     from lokigraph.behaviors.collision.intersect import find_intersections
     from lokigraph.compile import compile_scene
@@ -88,10 +97,11 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path) -> dict:
     path = folder / f"cloth_sphere_{n}.yaml"
     path.write_text(text)
 
-    default = C.SPACETIME
+    default = [getattr(C, k) for k in _FLAGS]
 
     def setting(on):
-        C.SPACETIME = on
+        for k, val in zip(_FLAGS, AB_SETTINGS[mode if on else ref]):
+            setattr(C, k, val)
 
     runs = {}
     for on in (False, True):
@@ -120,7 +130,8 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path) -> dict:
                 L = np.linalg.norm(np.diff(q[r["E"]], axis=1)[:, 0], axis=1)
                 r["strain"] = max(r["strain"], float(((L - r["L0"]) / r["L0"]).max()))
     finally:
-        C.SPACETIME = default
+        for k, val in zip(_FLAGS, default):
+            setattr(C, k, val)
     k = from_frame - 1
     off, on = (np.array(runs[b]["cpu"]) for b in (False, True))
     return {"resolution": n, "cpu_ms_off": 1e3 * float(np.median(off[k:])),
@@ -134,9 +145,10 @@ def main_ab(args):
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in args.sizes:
-            rows.append(run_ab(n, args.frames, args.from_frame, Path(tmp)))
-    print(f"frames {args.from_frame}..{args.frames} timed (medians), space-time boxes off / "
-          "on, interleaved")
+            rows.append(run_ab(n, args.frames, args.from_frame, Path(tmp), args.ab_mode,
+                               args.ab_ref))
+    print(f"frames {args.from_frame}..{args.frames} timed (medians), space-time boxes "
+          f"'{args.ab_ref}' (off) / '{args.ab_mode}' (on), interleaved")
     print("| res | CPU ms/frame off | CPU ms/frame on | median per-frame ratio on/off | "
           "pairs off / on (max) | max strain % off / on |")
     print("|---|---|---|---|---|---|")
@@ -159,6 +171,10 @@ def main(argv=None):
     ap.add_argument("--out", default="bench_out/scaling_collision")
     ap.add_argument("--ab", action="store_true", help="space-time boxes off vs on, "
                     "interleaved (see the module docstring)")
+    ap.add_argument("--ab-mode", choices=sorted(AB_SETTINGS), default="known",
+                    help="--ab: the setting timed as 'on'")
+    ap.add_argument("--ab-ref", choices=sorted(AB_SETTINGS), default="off",
+                    help="--ab: the setting timed as 'off'")
     args = ap.parse_args(argv)
     if not 2 <= args.from_frame <= args.frames:
         ap.error("--from-frame must be in 2..--frames")
