@@ -136,7 +136,12 @@ def test_sleeve_elbow_with_mechanisms(tmp_path):
     _report(r, "with mechanisms")
     assert r["finite"]
     assert r["vmax"][3:].max() < SPEED_BOUND  # measured 1.27 m/s (the hem, frame 28)
-    assert r["vpinch"][3:].max() < PINCH_SPEED_BOUND  # measured 0.65 m/s (frame 18)
+    # measured 0.65 m/s (frame 18). The frame-end maximum is a sensitive statistic of a
+    # sleeve squeezed along the closing crease: with 14, 16 and 17 solver iterations instead
+    # of 15 it measured 1.27, 1.29 and 1.22 m/s (0.95, 0.86, 1.15, 1.39 m/s at 14-17 with the
+    # opt-in long-range rows and inextensible strain limit), so a change that moves the
+    # trajectory at all can fail it; the bound itself is the physical one
+    assert r["vpinch"][3:].max() < PINCH_SPEED_BOUND
     assert (r["pen"] == 0).all()  # measured 0 in every frame
     assert (r["self"] == 0).all()  # measured 0: the sleeve never passes through itself
     assert r["follow"].max() == 0.0  # unpainted vertices follow their animation exactly

@@ -66,18 +66,31 @@ class StrainLimitParams(ConstraintParams):
         "constitutive", description="'constitutive': solved together with the contacts; "
         "'post': a strain-limiting pass after the solve (for comparison).")
     post_iterations: int = Field(10, ge=1, le=10000, description="Passes of the post mode.")
-    joint_iterations: int = Field(40, ge=1, le=10000, description="Most joint contact + strain-limit "
-                                  "passes in the final collision rounds (stops when both hold).")
+    joint_iterations: int = Field(40, ge=1, le=10000, description="Most joint contact + "
+                                  "strain-limit passes in the final collision rounds (stops "
+                                  "when both hold) when some element paints max_strain.")
+    inextensible_joint_iterations: int = Field(
+        10, ge=1, le=10000, description="Most joint passes when only the inextensible limit "
+        "(inextensible_max_strain) is present: resting contacts keep every pass active, so "
+        "each costs a full contact and strain-limit sweep. Measured against 40 "
+        "(graphs/bench/cloth_strain.py, 24 frames): cloth_on_sphere 7.5 % instead of 6.6 % "
+        "at -18 % CPU per frame, sleeve_elbow 20.7 % instead of 10.1 % at -16 %.")
     tolerance: float = Field(1e-3, ge=0, description="Accepted relative excess over the limit.")
     inextensible_max_strain: float | None = Field(
         None, ge=0, le=10.0, description="Strain limit eps_e [-] given to every inextensible "
         "DiscreteShell (youngs_modulus null) that sets no max_strain, solved with the contacts "
-        "like a painted one; null = none (default). Measured at 0.05 with joint_iterations 10 "
-        "and stretch long_range_levels 5, sweeps 3 (worst-frame edge strain over 24 frames): "
-        "cloth_on_sphere 7.5 %, sleeve_elbow 20.7 %, skirt_walk 5.0 %, flag_wind 5.0 %, at "
-        "+6 % CPU on cloth_on_sphere; without the long-range rows cloth_on_sphere reaches 77 %. "
-        "Opt-in: in the stress case of a cloth starting interpenetrated it ends with 2 more "
-        "crossing pairs than it starts with (305 -> 307).")
+        "like a painted one; null = none (default). Measured at 0.05 with 10 joint passes "
+        "and stretch long_range_levels 5, sweeps 3 (worst-frame edge strain over 24 frames, "
+        "without -> with these): cloth_on_sphere 184 -> 7.5 %, sleeve_elbow 95 -> 20.7 %, "
+        "skirt_walk 8.0 -> 5.0 %, flag_wind 17.1 -> 5.0 %, at about the CPU per frame of the "
+        "64 x 64 drop without them (graphs/bench/cloth_strain.py, 'in_contact'); the full-size "
+        "stress projectile keeps 0 penetrations with them (it crossed from frame 6 on before "
+        "the side memory of the contacts took only a nearest triangle the vertex projects "
+        "onto). Opt-in: the sleeve caught in the crease of the slow elbow test is thrown out "
+        "faster than the forearm moves with them (see stretch.long_range_levels), and the stress "
+        "case of a cloth starting interpenetrated ended with 2 more crossing pairs than it "
+        "starts with (305 -> 307, measured before that fix). The implicit solver projects it "
+        "after its solve as well.")
 
 
 @dataclass
@@ -100,6 +113,7 @@ class StrainLimitConstraint(ConstraintBehavior):
     def bind(self, ctx, elements):
         es, lims = [], []
         auto = self.params.inextensible_max_strain
+        self._painted = False
         for e in elements:
             c = e.get(DiscreteShell) or e.get(Rod)
             if c.max_strain is None and (auto is None or not isinstance(c, DiscreteShell)
@@ -110,6 +124,7 @@ class StrainLimitConstraint(ConstraintBehavior):
             edges = T.triangle_edges(g.triangles) if len(g.triangles) else g.edges
             if not len(edges):
                 continue
+            self._painted |= c.max_strain is not None
             eps = (np.full(e.vertex_count, float(auto)) if c.max_strain is None else
                    resolve_paintable(c.max_strain, e, f"{type(c).__name__}.max_strain"))
             if np.any(eps < 0):
@@ -141,7 +156,10 @@ class StrainLimitConstraint(ConstraintBehavior):
             project_strain_limit(p, ctx.model.particle_inv_mass, d.edges, d.limit, d.color_ptr)
 
     def joint_iterations(self) -> int:
-        return self.params.joint_iterations if self.params.mode == "constitutive" else 0
+        if self.params.mode != "constitutive":
+            return 0
+        return (self.params.joint_iterations if getattr(self, "_painted", True)
+                else self.params.inextensible_joint_iterations)
 
     def satisfied(self, ctx, d, p) -> bool:
         return self.params.mode != "constitutive" or strain_excess(

@@ -323,13 +323,17 @@ class StretchParams(ConstraintParams):
                                    "Measured at 5 levels and 3 sweeps, worst-frame edge strain "
                                    "over 24 frames, off -> on: cloth_on_sphere 184 -> 26 %, "
                                    "cloth_pinned 10.2 -> 2.0 %, flag_wind 17.1 -> 6.1 %, "
-                                   "skirt_walk 8.0 -> 6.6 %; sleeve_elbow (a pinch) 95 -> 99 %. "
-                                   "Opt-in: vertices then move beyond the envelope their "
-                                   "contacts were detected for (the stress projectile ends with "
-                                   "6 cloth-ball crossings) unless collisions.redetect is on, "
-                                   "which costs 2.3x on cloth_on_sphere; and three collision "
-                                   "tests change outcome (fast ball rebound timing, a gap median "
-                                   "on a box, a pinch recession across substeps).")
+                                   "skirt_walk 8.0 -> 6.6 %; sleeve_elbow (a pinch) 95 -> 99 %; "
+                                   "with strain_limit.inextensible_max_strain 0.05 as well: "
+                                   "cloth_on_sphere 7.5 %, skirt_walk 5.0 %, sleeve_elbow "
+                                   "20.7 %. Opt-in: in the slow elbow test the sleeve caught in "
+                                   "the crease is squeezed out faster than the forearm moves "
+                                   "(0.86 m/s at frame 26 against the 0.73 m/s bound, 0.65 "
+                                   "without them). That frame-end maximum swings with any small "
+                                   "change (0.72 to 1.4 m/s over levels, sweeps, passes; 0.95 to "
+                                   "1.39 at 14-17 solver iterations, and 1.22 to 1.29 without "
+                                   "the rows and limit at 14, 16, 17), so no setting was found "
+                                   "that holds it.")
     sweeps: int = Field(1, ge=1, le=100, description="Edge sweeps per stretch pass when the "
                         "set holds inextensible cloth (1 = default; other sets always 1). "
                         "Edges are cheap next to contacts; more sweeps carry corrections "
@@ -337,6 +341,20 @@ class StretchParams(ConstraintParams):
                         "3 sweeps: 47 -> 26 %). Cost of 5 levels + 3 sweeps, CPU ms/frame "
                         "before -> after in one run: 534 -> 482 on the 64 x 64 drop (fewer "
                         "active contacts), 15 -> 30 on cloth_pinned (32 x 32, no contacts).")
+    joint_long_range: bool = Field(False, description="Project the long-range rows also in "
+                                   "every joint pass of the final collision rounds and of the "
+                                   "CCD rounds (before the strain limits and the contacts), "
+                                   "where they carry the strain limit's corrections across "
+                                   "the sheet. Off by default: it pays with more joint passes "
+                                   "only. Measured (graphs/bench/cloth_strain.py, worst frame "
+                                   "of 24, CPU ms/frame beside 5 levels, 3 sweeps and the 5 % "
+                                   "inextensible limit with 10 passes, in one run): with "
+                                   "strain_limit.inextensible_joint_iterations 40 "
+                                   "and inextensible_max_strain 0.02 cloth_on_sphere 7.5 -> 3.8 % "
+                                   "(492 -> 759 ms), sleeve_elbow 20.7 -> 3.2 % (242 -> 318), "
+                                   "skirt_walk 5.0 -> 2.0 % (54 -> 56); at 10 joint passes it "
+                                   "helps the sleeve (20.7 -> 12.6 %) and not the drop (7.5 -> "
+                                   "9.8 %).")
 
 
 @dataclass
@@ -435,6 +453,23 @@ class StretchConstraint(ConstraintBehavior):
                ctx.dt, lr.color_ptr)
         for _ in range(d.sweeps):
             _project_edges(ctx, d, p)
+
+    def project_joint(self, ctx, d, p):
+        """Called by the final collision rounds and the CCD rounds before the strain limits
+        and the contacts of every joint pass (``joint_long_range``): the long-range rows only
+        (unilateral, consistent with any strain limit >= 0); the edges stay out (hard and
+        bilateral, they would fight the contacts)."""
+        lr = d.long_range if d is not None else None
+        if lr is not None and self.params.joint_long_range:
+            fn = project_stretch_seq if lr.sequential else project_stretch
+            fn(p, ctx.model.particle_inv_mass, lr.idx, lr.rest, lr.alpha, lr.alpha2, lr.lam,
+               ctx.dt, lr.color_ptr)
+
+    def joint_iterations(self) -> int:
+        return 0  # the strain limits and the collision parameters set the joint passes
+
+    def satisfied(self, ctx, d, p) -> bool:
+        return True  # the strain limits judge the edges
 
     def residual(self, ctx, d, p):
         return float(residual_stretch(p, d.idx, d.rest)[0])

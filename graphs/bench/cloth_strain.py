@@ -5,13 +5,17 @@ alike):
 
 * ``long_range``: ``stretch: {long_range_levels: 5, sweeps: 3}``;
 * ``in_contact``: that plus ``strain_limit: {inextensible_max_strain: 0.05,
-  joint_iterations: 10}``;
-* ``in_contact+redetect``: that plus ``collisions: {redetect: true}``.
+  inextensible_joint_iterations: 10}``;
+* ``in_contact+redetect``: that plus ``collisions: {redetect: true}``;
+* ``tight``: ``in_contact`` with ``stretch: {joint_long_range: true}``, ``strain_limit:
+  {inextensible_max_strain: 0.02, inextensible_joint_iterations: 40}``.
 
 Run::
 
     .venv/bin/python graphs/bench/cloth_strain.py [--frames 24] [--scenes cloth_on_sphere ...]
-    .venv/bin/python graphs/bench/cloth_strain.py --set stretch.sweeps=2 ...   # extra settings
+    .venv/bin/python graphs/bench/cloth_strain.py --only defaults in_contact \
+        --set stretch.sweeps=2 \
+        --set strain_limit.inextensible_joint_iterations=20 ...   # some settings, extra ones
     /tmp/venv-peer/bin/python graphs/bench/cloth_strain.py --peer 64 [128] [--frames 23]
 
 ``--peer N`` runs the peer collision scene (``cloth_sphere_N.yaml``) through
@@ -38,13 +42,15 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-BEFORE = {}
+DEFAULTS = {}
 LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3}}
 IN_CONTACT = {**LONG_RANGE, "strain_limit": {"inextensible_max_strain": 0.05,
-                                             "joint_iterations": 10}}
+                                             "inextensible_joint_iterations": 10}}
 REDETECT = {**IN_CONTACT, "collisions": {"redetect": True}}
-SETTINGS = [("defaults", BEFORE), ("long_range", LONG_RANGE), ("in_contact", IN_CONTACT),
-            ("in_contact+redetect", REDETECT)]
+TIGHT = {"stretch": {**LONG_RANGE["stretch"], "joint_long_range": True},
+         "strain_limit": {"inextensible_max_strain": 0.02, "inextensible_joint_iterations": 40}}
+SETTINGS = [("defaults", DEFAULTS), ("long_range", LONG_RANGE), ("in_contact", IN_CONTACT),
+            ("in_contact+redetect", REDETECT), ("tight", TIGHT)]
 SCENES = ("cloth_on_sphere", "skirt_walk", "sleeve_elbow", "cloth_pinned", "flag_wind")
 
 
@@ -102,15 +108,15 @@ def _parse_set(items):
     return out
 
 
-def scenes_table(names, frames, extra):
+def scenes_table(names, frames, extras, only=None):
     print("| scene | setting | worst strain % | frame | last % | max pen | CPU ms/frame | "
           "wall ms/frame |")
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             path = ROOT / "graphs" / "examples" / f"{name}.yaml"
-            settings = list(SETTINGS)
-            if extra:
+            settings = [s for s in SETTINGS if not only or s[0] in only]
+            for extra in extras:
                 settings.append((" ".join(f"{n}.{k}={v}" for n, p in extra.items()
                                           for k, v in p.items()), extra))
             files = [_variant(path, ov, Path(tmp)) for _, ov in settings]
@@ -154,14 +160,15 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=24)
     ap.add_argument("--scenes", nargs="+", default=list(SCENES))
-    ap.add_argument("--set", nargs="*", help="extra setting NODE.PARAM=VALUE (third column)")
+    ap.add_argument("--set", nargs="+", action="append", default=[],
+                    help="an extra setting NODE.PARAM=VALUE ... (repeat --set for more)")
     ap.add_argument("--peer", type=int, nargs="*", help="peer collision scene sizes")
-    ap.add_argument("--only", nargs="*", help="with --peer: only these lokigraph settings")
+    ap.add_argument("--only", nargs="*", help="only these of the built-in settings")
     args = ap.parse_args(argv)
     if args.peer:
         peer(args.peer, args.frames, args.only)
     else:
-        scenes_table(args.scenes, args.frames, _parse_set(args.set))
+        scenes_table(args.scenes, args.frames, [_parse_set(x) for x in args.set], args.only)
 
 
 if __name__ == "__main__":
