@@ -720,8 +720,15 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
                 side_seen[p, et] = stamp
                 # crossed if the nearest triangle says so, through the triangles on that side
                 crossed = side_mem[p, et] != near and cur == near
-            elif recover[et] and crossed_at[p, et] >= stamp - 1:
-                continue  # pushed through this sheet: only the triangles it is under pull back
+            elif recover[et] and (crossed_at[p, et] >= stamp - 1 or (
+                    near_s[p, et] != 0 and side_mem[p, et] != 0
+                    and side_seen[p, et] >= stamp - SIDE_MEMORY
+                    and side_mem[p, et] != near_s[p, et])):
+                # pushed through this sheet: only the triangles it is under pull back (also in
+                # the pass that first finds it through, whatever the candidate order: a
+                # triangle it does not project onto, met before the one that flags it, kept
+                # a row from the start separation that pushed it farther in)
+                continue
             if crossed:
                 crossed_at[p, et] = stamp
                 if side >= 0.0:
