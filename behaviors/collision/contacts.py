@@ -619,6 +619,12 @@ def _min_bary(p, a, b, c):
     return min(1.0 - bb - cc, bb, cc)
 
 
+@njit(cache=True, inline="always")
+def _remembers_side(side_mem, side_seen, p, e, stamp):
+    """Does vertex p still remember a side of element e (seen within SIDE_MEMORY passes)?"""
+    return side_mem[p, e] != 0 and side_seen[p, e] >= stamp - SIDE_MEMORY
+
+
 @njit(cache=True)
 def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, th_in, fric,
                visible, setmask, one_sided, x, v, h, restitution, margin, rows, nrm, tgt, mu,
@@ -715,14 +721,13 @@ def _filter_vf(cand, verts, tris, tri_elem, vert_elem, allow, tolerant, th_out, 
             if recover[et] and not recover[ep] and area2 > 0.0 \
                     and _min_bary(x[p], x[a], x[b], x[c]) >= -1e-3:
                 near = near_s[p, et]  # the element's side: that of its nearest triangle
-                if side_seen[p, et] < stamp - SIDE_MEMORY or side_mem[p, et] == 0:
+                if not _remembers_side(side_mem, side_seen, p, et, stamp):
                     side_mem[p, et] = near  # first seen: trust the start
                 side_seen[p, et] = stamp
                 # crossed if the nearest triangle says so, through the triangles on that side
                 crossed = side_mem[p, et] != near and cur == near
             elif recover[et] and (crossed_at[p, et] >= stamp - 1 or (
-                    near_s[p, et] != 0 and side_mem[p, et] != 0
-                    and side_seen[p, et] >= stamp - SIDE_MEMORY
+                    near_s[p, et] != 0 and _remembers_side(side_mem, side_seen, p, et, stamp)
                     and side_mem[p, et] != near_s[p, et])):
                 # pushed through this sheet: only the triangles it is under pull back (also in
                 # the pass that first finds it through, whatever the candidate order: a

@@ -445,12 +445,15 @@ class StretchConstraint(ConstraintBehavior):
                                         np.full(len(bound), np.inf), sequential=True)
         return d
 
+    @staticmethod
+    def _project_long_range(ctx, lr, p):
+        fn = project_stretch_seq if lr.sequential else project_stretch
+        fn(p, ctx.model.particle_inv_mass, lr.idx, lr.rest, lr.alpha, lr.alpha2, lr.lam,
+           ctx.dt, lr.color_ptr)
+
     def project(self, ctx, d, p):
-        lr = d.long_range
-        if lr is not None:
-            fn = project_stretch_seq if lr.sequential else project_stretch
-            fn(p, ctx.model.particle_inv_mass, lr.idx, lr.rest, lr.alpha, lr.alpha2, lr.lam,
-               ctx.dt, lr.color_ptr)
+        if d.long_range is not None:
+            self._project_long_range(ctx, d.long_range, p)
         for _ in range(d.sweeps):
             _project_edges(ctx, d, p)
 
@@ -459,11 +462,8 @@ class StretchConstraint(ConstraintBehavior):
         and the contacts of every joint pass (``joint_long_range``): the long-range rows only
         (unilateral, consistent with any strain limit >= 0); the edges stay out (hard and
         bilateral, they would fight the contacts)."""
-        lr = d.long_range if d is not None else None
-        if lr is not None and self.params.joint_long_range:
-            fn = project_stretch_seq if lr.sequential else project_stretch
-            fn(p, ctx.model.particle_inv_mass, lr.idx, lr.rest, lr.alpha, lr.alpha2, lr.lam,
-               ctx.dt, lr.color_ptr)
+        if d is not None and d.long_range is not None and self.params.joint_long_range:
+            self._project_long_range(ctx, d.long_range, p)
 
     def joint_iterations(self) -> int:
         return 0  # the strain limits and the collision parameters set the joint passes

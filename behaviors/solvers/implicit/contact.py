@@ -338,17 +338,10 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
             continue
         n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
         C = -target[r]
-        u[:] = 0.0
         for j in range(4):
             a = rows[r, j]
-            cj = coef[r, j]
-            C += cj * (x[a, 0] * n0 + x[a, 1] * n1 + x[a, 2] * n2)
-            if nofric[a]:
-                for q in range(3):
-                    u[q] += cj * (xf[a, q] - x0[a, q])
-            else:
-                for q in range(3):
-                    u[q] += cj * (x[a, q] - x0[a, q])
+            C += coef[r, j] * (x[a, 0] * n0 + x[a, 1] * n1 + x[a, 2] * n2)
+        _row_motion(x, x0, xf, nofric, rows, coef, r, u)
         blk[:, :] = 0.0
         blf[:, :] = 0.0
         have = False
@@ -407,46 +400,53 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
     return E
 
 
+@njit(cache=True, inline="always")
+def _row_motion(x, x0, xf, nofric, rows, coef, r, u):
+    """The motion of row r over the substep into ``u``: sum_a c_a (x_a - x0_a), with the fixed
+    ``xf - x0`` (the animation's step) at vertices flagged ``nofric`` (compliant kinematic
+    vertices, which take no friction)."""
+    u[:] = 0.0
+    for j in range(4):
+        a = rows[r, j]
+        cj = coef[r, j]
+        if nofric[a]:
+            for q in range(3):
+                u[q] += cj * (xf[a, q] - x0[a, q])
+        else:
+            for q in range(3):
+                u[q] += cj * (x[a, q] - x0[a, q])
+
+
 @njit(cache=True)
 def row_residuals(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, xf, nofric):
     """Complementarity residuals of the contact rows at x (the end of a Newton solve), with the
-    gaps C_r = n_r . sum_a c_a x_a - target_r and the rows' normal forces lam_r [N] as the
-    solve lagged them at x. Returns (normal, lag, cone):
+    gaps C_r = n_r . sum_a c_a x_a - target_r (summed as ``lag_rows`` sums them) and the rows'
+    normal forces lam_r [N] as the solve lagged them at x. Returns (normal, cone):
 
     - normal [m]: max over rows of |min(C_r, lam_r / k_r)|, the residual of C >= 0, lam >= 0,
       C lam = 0 (0 at an exact complementary pair; for the penalty rows, whose force is
       k max(-C, 0), it is the largest penetration);
-    - lag [N]: max |lam_r - k_r max(-C_r, 0)|, how far the lagged normal forces (those the
-      friction used) are from the forces of the gaps at x;
     - cone [N]: max(|f_t| - mu lam, 0) over rows, the Coulomb cone violation of the smoothed
       friction force f_t = mu lam f1(|u|) u / |u| (u the tangential displacement of the
       substep, ``row_energy``; IPC's f1 <= 1 keeps it 0 up to rounding).
 
-    (Right after the solver's last lag at x, ``lam`` is the force of the gaps, k max(-C, 0),
-    so lag is 0 there; it measures lagged forces taken elsewhere.)
-
     Rows without a free vertex (k_r = 0) are skipped."""
-    normal, lagr, cone = 0.0, 0.0, 0.0
+    normal, cone = 0.0, 0.0
     u = np.zeros(3)
     for r in range(rows.shape[0]):
         k = kr[r]
         if k <= 0.0:
             continue
         C = -target[r]
-        u[:] = 0.0
         for j in range(4):
             a = rows[r, j]
-            cj = coef[r, j]
             for q in range(3):
-                C += cj * x[a, q] * nrm[r, q]
-                u[q] += cj * ((xf[a, q] if nofric[a] else x[a, q]) - x0[a, q])
+                C += coef[r, j] * x[a, q] * nrm[r, q]
+        _row_motion(x, x0, xf, nofric, rows, coef, r, u)
         L = lam[r]
         res = abs(min(C, L / k))
         if res > normal:
             normal = res
-        dl = abs(L - (k * -C if C < 0.0 else 0.0))
-        if dl > lagr:
-            lagr = dl
         if L > 0.0 and mu[r] > 0.0:
             un = u[0] * nrm[r, 0] + u[1] * nrm[r, 1] + u[2] * nrm[r, 2]
             y = 0.0
@@ -458,4 +458,4 @@ def row_residuals(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, xf, n
             over = mu[r] * L * f1y * y - mu[r] * L
             if over > cone:
                 cone = over
-    return normal, lagr, cone
+    return normal, cone

@@ -712,13 +712,13 @@ class ImplicitSolver(Behavior):
     def _row_residuals(self, ctx, d, x, xt):
         """The contact rows' complementarity residuals at the Newton solution x into the
         frame's stats (maxima; ``row_residuals``): ``max_complementarity`` [m] and
-        ``max_cone_violation`` [N] (the lag residual is 0 right after the last lag). Returns
+        ``max_cone_violation`` [N]. Returns
         this substep's normal residual [m]."""
         eps = self.params.friction_velocity * ctx.dt
         s = ctx.stats
         worst = 0.0
         for rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf in d.rows["sets"]:
-            nr, _lr, cr = row_residuals(x, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef,
+            nr, cr = row_residuals(x, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef,
                                         kr, lam, mu, eps, xt, d.compliant)
             for key, v in (("max_complementarity", nr), ("max_cone_violation", cr)):
                 s[key] = max(s.get(key, 0.0), v)
