@@ -24,6 +24,10 @@ at its 20 cap in most frames of every moving scene with both:
     pinch (60 frames, bound 0.3 from frame 5)  0.32 m/s, 0.22 s / 1.74 m/s, 0.28 s
     sleeve_pinch (60 frames, bound 0.3)        0.43 m/s, 0.50 s / 0.67 m/s, 0.66 s
 
+With hard_limit 0.02 (the hard rows' strain limit in the solve, default since; the figures
+above are with 0): knee 1.60 m/s from frame 8 (25 frames), sleeve_elbow 0.84 m/s from frame 8
+(1.27 m/s at frame 2), 0 intersecting pairs.
+
 Whole runs (converged / always): knee (72 frames) 2.32 m/s at frame 56 (1.57 in frames 38-49,
 bound 1.65 there) / 6.19 m/s at frame 27, 1.05 / 1.55 s per frame; sleeve_elbow (60 frames)
 1.69 m/s at frame 42 / 4.67 m/s, 0.74 / 1.15 s per frame: both still above their Nucleus bounds

@@ -259,50 +259,131 @@ def safety_project(x, fixed, kinds, centers, dirs, radii, lengths):
 # direction, exact for a vertex against a kinematic collider.
 
 
+@njit(cache=True, inline="always")
+def _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r):
+    """``lag_rows`` for row r; returns 1 where the row is active (C < 0, a free vertex)."""
+    a0, a1, a2, a3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+    if is_vf:
+        _, b0, b1, b2 = _pt_tri_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1],
+                                   x[a1, 2], x[a2, 0], x[a2, 1], x[a2, 2], x[a3, 0],
+                                   x[a3, 1], x[a3, 2])
+        coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = 1.0, -b0, -b1, -b2
+    else:
+        _, s, t = _seg_seg_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1], x[a1, 2],
+                              x[a2, 0], x[a2, 1], x[a2, 2], x[a3, 0], x[a3, 1], x[a3, 2])
+        coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = 1.0 - s, s, -(1.0 - t), -t
+    mk = 0.0
+    for j in range(4):
+        a = rows[r, j]
+        if not fixed[a] and coef[r, j] != 0.0 and mass[a] > mk:
+            mk = mass[a]
+    kr[r] = h2k * mk
+    C = -target[r]
+    for j in range(4):
+        a = rows[r, j]
+        for q in range(3):
+            C += coef[r, j] * x[a, q] * nrm[r, q]
+    lam[r] = -kr[r] * C if C < 0.0 else 0.0
+    return 1 if (C < 0.0 and mk > 0.0) else 0
+
+
 @njit(cache=True)
 def lag_rows(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam):
     """Coefficients coef[r] (closest points at x), row stiffness kr[r] = h2k * the largest
     mass of its free vertices, and the normal forces lam[r] at x. Returns the active count."""
     count = 0
     for r in range(rows.shape[0]):
-        a0, a1, a2, a3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
-        if is_vf:
-            _, b0, b1, b2 = _pt_tri_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1],
-                                       x[a1, 2], x[a2, 0], x[a2, 1], x[a2, 2], x[a3, 0],
-                                       x[a3, 1], x[a3, 2])
-            coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = 1.0, -b0, -b1, -b2
-        else:
-            _, s, t = _seg_seg_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1], x[a1, 2],
-                                  x[a2, 0], x[a2, 1], x[a2, 2], x[a3, 0], x[a3, 1], x[a3, 2])
-            coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = 1.0 - s, s, -(1.0 - t), -t
-        mk = 0.0
-        for j in range(4):
-            a = rows[r, j]
-            if not fixed[a] and coef[r, j] != 0.0 and mass[a] > mk:
-                mk = mass[a]
-        kr[r] = h2k * mk
-        C = -target[r]
-        for j in range(4):
-            a = rows[r, j]
-            for q in range(3):
-                C += coef[r, j] * x[a, q] * nrm[r, q]
-        lam[r] = -kr[r] * C if C < 0.0 else 0.0
-        if C < 0.0 and mk > 0.0:
-            count += 1
+        count += _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
     return count
 
 
+#: slack [m] of the live-row test against the rounding of the gap sums (~1e-15 m)
+LIVE_SLACK = 1e-10
+
+
+@njit(cache=True, inline="always")
+def _gap_bound(x, rows, nrm, target, is_vf, r):
+    """A lower bound of the gap C_r = n_r . sum_a c_a x_a - target_r over every closest-point
+    coefficient vector c (convex on each side: vertex-face 1, -b with b barycentric; edge-edge
+    1 - s, s, -(1 - t), -t with s, t in [0, 1]): the smallest n . x of side one minus the
+    largest of side two. A min of linear functions of x, so concave: where it is >= 0 at both
+    ends of a segment, C is >= 0 all along it, whatever coefficients the row is lagged with."""
+    n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+    a, b, c, e = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+    p0 = x[a, 0] * n0 + x[a, 1] * n1 + x[a, 2] * n2
+    p1 = x[b, 0] * n0 + x[b, 1] * n1 + x[b, 2] * n2
+    p2 = x[c, 0] * n0 + x[c, 1] * n1 + x[c, 2] * n2
+    p3 = x[e, 0] * n0 + x[e, 1] * n1 + x[e, 2] * n2
+    if is_vf:
+        return p0 - max(p1, max(p2, p3)) - target[r]
+    return min(p0, p1) - max(p2, p3) - target[r]
+
+
 @njit(cache=True)
-def start_targets(x, rows, nrm, target, coef, out):
+def lag_rows_live(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reach, mark,
+                  sel):
+    """``lag_rows`` for the live rows at x only: a row whose gap bound (``_gap_bound``) is at
+    least ``reach`` (+ ``LIVE_SLACK``) at x and whose normal force ``lam`` was 0 gets lam = 0
+    and keeps its coefficients (it is inactive at x with any: no energy, gradient or Hessian,
+    exactly what ``lag_rows`` would give it); the others are lagged as ``lag_rows`` lags them,
+    flagged in ``mark`` and listed in ascending order in ``sel``. Returns (active count, number of live rows, largest |change|
+    of a normal force [N], largest normal force [N], largest |change| of a normal force over
+    its row's stiffness where that is > 0 [m]): the rows left out have lam 0 before and after.
+    """
+    count = 0
+    ns = 0
+    dl, top, dgap = 0.0, 0.0, 0.0
+    for r in range(rows.shape[0]):
+        old = lam[r]
+        if old > 0.0 or _gap_bound(x, rows, nrm, target, is_vf, r) < reach + LIVE_SLACK:
+            count += _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
+            mark[r] = 1
+            sel[ns] = r
+            ns += 1
+            d = abs(lam[r] - old)
+            dl = max(dl, d)
+            top = max(top, lam[r])
+            if kr[r] > 0.0:
+                dgap = max(dgap, d / kr[r])
+        else:
+            lam[r] = 0.0
+            mark[r] = 0
+    return count, ns, dl, top, dgap
+
+
+@njit(cache=True)
+def extend_live(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, mark, sel):
+    """Before a line search from x toward xb (or an energy evaluation at xb with the rows
+    lagged at x): the rows not live at x (``mark`` 0) whose gap bound is below
+    ``LIVE_SLACK`` at xb join the live rows, lagged at x (their normal force there is 0);
+    ``sel`` is rebuilt in ascending row order (the order of the sums of ``row_energy``). Rows
+    still not live have C >= 0 on the whole segment (``_gap_bound``). Returns the number of
+    live rows."""
+    ns = 0
+    for r in range(rows.shape[0]):
+        if mark[r] == 0 and _gap_bound(xb, rows, nrm, target, is_vf, r) < LIVE_SLACK:
+            _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
+            mark[r] = 1
+        if mark[r]:
+            sel[ns] = r
+            ns += 1
+    return ns
+
+
+@njit(cache=True)
+def start_targets(x, rows, nrm, target, coef, out, sel):
     """The targets of the contact rows in the Newton solve: ``min(target, gap)`` with ``gap``
     the row's signed gap along its normal at x (the start of the substep, coefficients
     ``coef`` lagged there). A row its pair already violates at the start (a crossed pair's
     "back toward the remembered side" row, a pair pressed inside its thickness) only stops
     approaching in the solve: its penalty holds no energy at the start that the solve would
     turn into motion; the recovery push stays with CollisionConstraint's projection pass,
-    as Nucleus applies it. Returns the number of rows lowered."""
+    as Nucleus applies it. Only the rows in ``sel`` are visited (the live rows at x: the
+    others have gap > target with any coefficients, ``_gap_bound``, and keep it). Returns the
+    number of rows lowered."""
     low = 0
-    for r in range(rows.shape[0]):
+    for i in range(sel.shape[0]):
+        r = sel[i]
         g = 0.0
         for j in range(4):
             a = rows[r, j]
@@ -318,7 +399,7 @@ def start_targets(x, rows, nrm, target, coef, out):
 
 @njit(cache=True)
 def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, grad, A, diag,
-               irls, reach, xf, nofric):
+               irls, reach, xf, nofric, sel):
     """Penalty + lagged friction energy of the contact rows at x (see above); gradient and
     block-diagonal Hessian as ``contact_energy``. With mode 2 a row not active at x but within
     ``reach`` [m] of its target (0 <= C < reach) still writes its penalty block k n n^T: the
@@ -326,13 +407,16 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
     unchanged; the matrix stays positive definite, so CG and the line search apply).
     Vertices flagged ``nofric`` (compliant kinematic vertices) take no friction: their
     displacement in the row's tangential motion u is the fixed ``xf - x0`` (their animation's
-    step), and the friction term adds no gradient or Hessian to them (the penalty does)."""
+    step), and the friction term adds no gradient or Hessian to them (the penalty does).
+    Only the rows listed in ``sel`` are visited (the live rows of ``lag_rows_live`` /
+    ``extend_live``: every other row is inactive here, adding nothing), in its order."""
     g = np.zeros(3)
     u = np.zeros(3)
     blk = np.zeros((3, 3))
     blf = np.zeros((3, 3))
     E = 0.0
-    for r in range(rows.shape[0]):
+    for i in range(sel.shape[0]):
+        r = sel[i]
         k = kr[r]
         if k <= 0.0:
             continue
@@ -418,7 +502,7 @@ def _row_motion(x, x0, xf, nofric, rows, coef, r, u):
 
 
 @njit(cache=True)
-def row_residuals(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, xf, nofric):
+def row_residuals(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, xf, nofric, sel):
     """Complementarity residuals of the contact rows at x (the end of a Newton solve), with the
     gaps C_r = n_r . sum_a c_a x_a - target_r (summed as ``lag_rows`` sums them) and the rows'
     normal forces lam_r [N] as the solve lagged them at x. Returns (normal, cone):
@@ -430,10 +514,12 @@ def row_residuals(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, xf, n
       friction force f_t = mu lam f1(|u|) u / |u| (u the tangential displacement of the
       substep, ``row_energy``; IPC's f1 <= 1 keeps it 0 up to rounding).
 
-    Rows without a free vertex (k_r = 0) are skipped."""
+    Rows without a free vertex (k_r = 0) are skipped, and so are rows not in ``sel`` (not
+    live at x, ``lag_rows_live``: C >= 0 and lam = 0, a zero residual)."""
     normal, cone = 0.0, 0.0
     u = np.zeros(3)
-    for r in range(rows.shape[0]):
+    for i in range(sel.shape[0]):
+        r = sel[i]
         k = kr[r]
         if k <= 0.0:
             continue

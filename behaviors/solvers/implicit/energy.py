@@ -138,3 +138,51 @@ def build_pattern(n: int, stencils: list[np.ndarray]):
         kk = np.repeat(S, k, axis=1) * n + np.tile(S, (1, k))
         maps.append(np.searchsorted(ukey, kk.ravel()).reshape(m, k, k).astype(np.int64))
     return indptr, indices, diag, maps
+
+
+@njit(cache=True)
+def limit_energy(x, idx, rest, alpha, hard_k, limit, kmul, mode, grad, data, bmap):
+    """Stiff strain-limit terms of the hard distance rows (``alpha`` 0, rest length > 0) in the
+    solve: ``kmul * k / 2 * (|x_a - x_b| - (1 + limit) L)_+^2`` with ``k`` the row's hard
+    penalty (``row_k``), i.e. only rows stretched past ``limit`` get the extra stiffness. The
+    gradient goes into ``grad`` (mode >= 1); with mode 2 the exact Hessian blocks
+    ``kk n n^T + (f / l) (I - n n^T)`` (PSD: the force f > 0 where the term is on) are added
+    straight into the BSR ``data`` through ``bmap`` (the (m, 2, 2) block map of the rows'
+    stencil). Returns the energy [J]."""
+    E = 0.0
+    for j in range(idx.shape[0]):
+        if alpha[j] != 0.0 or rest[j] <= 0.0:
+            continue
+        a = idx[j, 0]
+        b = idx[j, 1]
+        e0 = x[a, 0] - x[b, 0]
+        e1 = x[a, 1] - x[b, 1]
+        e2 = x[a, 2] - x[b, 2]
+        ln = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        c = ln - (1.0 + limit) * rest[j]
+        if c <= 0.0:
+            continue
+        kk = kmul * row_k(0.0, hard_k, a, b)
+        f = kk * c
+        E += 0.5 * kk * c * c
+        n0 = e0 / ln
+        n1 = e1 / ln
+        n2 = e2 / ln
+        if mode >= 1:
+            grad[a, 0] += f * n0
+            grad[a, 1] += f * n1
+            grad[a, 2] += f * n2
+            grad[b, 0] -= f * n0
+            grad[b, 1] -= f * n1
+            grad[b, 2] -= f * n2
+        if mode >= 2:
+            t = f / ln
+            nn = (n0, n1, n2)
+            for r in range(3):
+                for q in range(3):
+                    hv = (kk - t) * nn[r] * nn[q] + (t if r == q else 0.0)
+                    data[bmap[j, 0, 0], r, q] += hv
+                    data[bmap[j, 1, 1], r, q] += hv
+                    data[bmap[j, 0, 1], r, q] -= hv
+                    data[bmap[j, 1, 0], r, q] -= hv
+    return E

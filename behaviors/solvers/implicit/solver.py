@@ -23,8 +23,11 @@ Newton matrix M/h^2 + D/h + sum of PSD blocks is positive definite and CG applie
 the inertia m/h^2 of their vertices plus a multiplier that carries the constraint force over
 from one substep to the next (updated after every substep; each behavior checkpoints its own
 through ``state_arrays``), so that a moderate,
-well-conditioned penalty converges to the hard constraint at rest. The step
-solves H dx = -grad E by PCG (block-Jacobi preconditioner by default) to ``cg_tolerance``; a
+well-conditioned penalty converges to the hard constraint at rest. A hard distance row stretched
+past ``hard_limit`` (2 %) also gets a one-sided term ``hard_limit_stiffness`` (100) times
+stiffer (``energy.limit_energy``): a strain limit inside the solve, where a sudden load (a cloth
+hitting a sphere at one substep) meets the penalty alone (see the Field for the measurements).
+The step solves H dx = -grad E by PCG (block-Jacobi preconditioner by default) to ``cg_tolerance``; a
 backtracking line search (Armijo, halving) on E takes the step; iterations stop when the step
 changes no velocity by more than ``newton_tolerance`` [m/s] or after ``newton_iterations``.
 
@@ -46,7 +49,13 @@ enter the solve the same way (penalty on n0 . sum c_a x_a - target, closest-poin
 coefficients and normal forces lagged, block-diagonal Hessian), and ``CollisionConstraint``'s
 projection pass below stays as their safety projection (re-detection and CCD included). Newton
 does not stop while a lagged normal force changes by more than ``contact_tolerance`` of the
-largest, up to ``contact_newton_iterations``. This is a penalty method, not the
+largest, up to ``contact_newton_iterations``. Only the live rows are visited per Newton
+iteration (``contact.lag_rows_live`` / ``extend_live``): rows whose gap cannot be negative at the
+iterate, nor anywhere on the line-search segment, whatever their closest-point coefficients (a
+concave lower bound of the gap, ``_gap_bound``), hold no energy, so leaving them out is exact
+(positions bitwise unchanged); on graphs/bench/cloth_sphere_64.yaml at one substep the pipeline
+hands ~1.2 M rows per substep at impact (a detection margin of the substep's motion), of which
+~7,000 are live. This is a penalty method, not the
 complementarity solve of the Loki supplement eq. 5-7: contacts leave a small penetration (at
 rest ~ g h^2 / contact_stiffness) that the safety projection removes.
 
@@ -137,14 +146,18 @@ from lokigraph.errors import InputError
 
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
-from .contact import (contact_energy_al, lag_contacts_al, lag_rows, row_energy, row_residuals,
-                      safety_project, start_targets, update_contact_multipliers)
-from .energy import EnergyOptions, build_pattern, scatter_blocks
+from .contact import (contact_energy_al, extend_live, lag_contacts_al, lag_rows, lag_rows_live,
+                      row_energy, row_residuals, safety_project, start_targets,
+                      update_contact_multipliers)
+from .energy import EnergyOptions, build_pattern, limit_energy, scatter_blocks
 from .linear import BlockJacobi, Identity, SmoothedAggregation
 
 #: constraint types applied by the projection pass after the Newton solve (see module docstring)
 PROJECTED_TYPES = ("CollisionConstraint", "ShapeCollisionConstraint", "StrainLimitConstraint",
                    "PressureConstraint")
+#: energy types whose hard distance rows (alpha 0: inextensible stretch, hard stitches) take the
+#: strain-limit terms of ``hard_limit`` (``limit_energy``)
+LIMITED_TYPES = ("StretchConstraint", "StitchConstraint")
 #: constraint types the implicit solver does not need, with the reason (module docstring)
 NOT_NEEDED = {"TetherConstraint": "tethers are a Gauss-Seidel convergence aid; the Newton solve "
                                   "carries the (hard-penalty) stretch stiffness globally"}
@@ -308,6 +321,24 @@ class ImplicitParams(Params):
         "8-25 4.95 / 2.19 m/s (Nucleus test bound 2.2), sleeve_elbow 4.67 / 1.08 m/s (bound "
         "1.47); updating every substep at the Newton solution instead of after the projection "
         "pass: knee 5.5 m/s, elbow 4.7 m/s.")
+    hard_limit: float = Field(
+        0.02, ge=0.0, description="Strain |e| / L - 1 above which a hard distance row "
+        "(inextensible stretch, hard stitches) gets the extra energy hard_limit_stiffness * k / "
+        "2 * (|e| - (1 + hard_limit) L)^2 in the Newton solve (k its hard penalty; a one-sided "
+        "strain limit inside the solve, exact Hessian; 0: off) [-]. Cause measured with "
+        "graphs/bench/implicit_drop.py (cloth on a sphere mesh, 1 substep): at impact the hard "
+        "rows hold by their penalty alone (Newton stops at its cap in every impact substep, "
+        "so hard_multipliers: converged keeps the multipliers, and they lag a sudden load "
+        "anyway), and the penalty's strain grows with the square of the resolution. Worst edge "
+        "strain 64x64 (24 frames) / 128x128 (11 frames): 6.8 % / 7.0 % off, 2.6 % / 4.8 % at "
+        "0.02, 128x128 at 0.01 5.0 % (3.6 % in the Newton solution, the projection pass "
+        "stretches the rest); hard_stiffness 1e5 instead: 64x64 2.1 % (10 frames) at twice "
+        "the CG iterations; hard_multipliers: always 4.7 %, more augmented Lagrangian updates "
+        "within the substep (2 / 4 Newton solves) 3.5 % / 9.3 %. Trouser knee (25 frames) "
+        "2.19 -> 1.60 m/s, sleeve elbow 0.84 m/s from frame 8.")
+    hard_limit_stiffness: float = Field(
+        100.0, gt=0, description="hard_limit: the extra stiffness of a row stretched past the "
+        "limit, as a multiple of its hard penalty [-] (64x64 drop: 2.6 % at 100, 5.5 % at 10).")
     jam_penetration: float = Field(
         1e-4, gt=0, description="With hard_multipliers: converged, the hard rows' multipliers "
         "are also kept after a substep whose contact rows end the Newton solve penetrated by "
@@ -515,6 +546,7 @@ class ImplicitSolver(Behavior):
                 E += b.energy(ctx, bd, x, grad, hloc, opts)
                 for mp, hl in zip(maps, hloc):
                     scatter_blocks(A, mp, hl)
+            E += self._limit_energy(d, x, mode, opts, grad, A)
             diag = A[d.diag]
             eye = np.eye(3)
             diag += (mass / (h * h))[:, None, None] * eye
@@ -530,15 +562,17 @@ class ImplicitSolver(Behavior):
         else:
             for b, bd, st, maps, hloc in d.energies:
                 E += b.energy(ctx, bd, x, grad if mode >= 1 else None, None, opts)
+            E += self._limit_energy(d, x, mode, opts, grad if mode >= 1 else opts.dummy_grad,
+                                    d.A.data)
         if d.rows.get("sets"):
             g1 = grad if mode >= 1 else d.rows["g1"]
             A1 = d.A.data if mode >= 2 else d.rows["A1"]
             irls = self.params.friction_hessian == "irls"
             eps = self.params.friction_velocity * h
-            for rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf in d.rows["sets"]:
+            for rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf, _mk, sel, ns in d.rows["sets"]:
                 E += row_energy(x, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef, kr, lam, mu,
                                 eps, mode, g1, A1, d.diag, irls, self.params.contact_reach,
-                                xt, d.compliant)
+                                xt, d.compliant, sel[:ns[0]])
         if d.shapes is not None:
             C = d.contact
             E += contact_energy_al(x, d.work["x0"], d.cur_fixed, *d.shapes, C["kc"], C["mult"],
@@ -679,7 +713,8 @@ class ImplicitSolver(Behavior):
             if buf is None or buf[0].shape[0] < m:
                 cap = max(64, 2 * m)
                 buf = (np.zeros((cap, 4)), np.zeros(cap), np.zeros(cap), np.zeros(cap),
-                       np.zeros(cap))
+                       np.zeros(cap), np.zeros(cap, np.uint8), np.zeros(cap, np.int64),
+                       np.zeros(1, np.int64))
                 d.rows["buf"][kind] = buf
             if self.params.violated_rows == "hold":  # the solve's targets (start_targets)
                 tgt_solve = buf[4][:m]
@@ -687,20 +722,33 @@ class ImplicitSolver(Behavior):
             else:
                 tgt_solve = tgt
             d.rows["sets"].append((rows, nrm, tgt_solve, mu, buf[0][:m], buf[1][:m],
-                                   buf[2][:m], buf[3][:m], kind == "vf"))
+                                   buf[2][:m], buf[3][:m], kind == "vf", buf[5][:m],
+                                   buf[6][:m], buf[7]))
 
-    def _lag_rows(self, ctx, d, x):
+    def _lag_rows(self, ctx, d, x, live=False):
         """Lag coefficients and normal forces of the contact rows at x; returns
         (active rows, largest |change| of a normal force [N], largest normal force [N],
-        largest |change| of a normal force over its row's stiffness [m])."""
+        largest |change| of a normal force over its row's stiffness [m]). With ``live`` only
+        the rows live at x (``lag_rows_live``; the others are inactive at x, whatever their
+        coefficients) are lagged and listed for ``row_energy``; otherwise every row."""
         h = ctx.dt
         m = ctx.model
+        h2k = self.params.contact_stiffness / (h * h)
         act, dl, top, dgap = 0, 0.0, 0.0, 0.0
-        for rows, nrm, tgt, mu, coef, kr, lam, lam_prev, is_vf in d.rows["sets"]:
+        for rows, nrm, tgt, mu, coef, kr, lam, lam_prev, is_vf, mark, sel, ns in d.rows["sets"]:
+            if live:  # the changes of the live rows (the others have lam 0 before and after)
+                a, ns[0], dl1, top1, dgap1 = lag_rows_live(
+                    x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf, coef, kr, lam,
+                    self.params.contact_reach, mark, sel)
+                act += a
+                dl, top, dgap = max(dl, dl1), max(top, top1), max(dgap, dgap1)
+                continue
             lam_prev[:] = lam
-            act += lag_rows(x, d.cur_fixed, m.particle_mass,
-                            self.params.contact_stiffness / (h * h), rows, nrm, tgt, is_vf,
+            act += lag_rows(x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf,
                             coef, kr, lam)
+            mark[:] = 1
+            sel[:] = np.arange(len(sel))
+            ns[0] = len(sel)
             if len(lam):
                 dlam = np.abs(lam - lam_prev)
                 dl = max(dl, float(dlam.max()))
@@ -708,6 +756,14 @@ class ImplicitSolver(Behavior):
                 dgap = max(dgap, _change_over_stiffness(dlam, kr))
         d.rows["active"] = act
         return act, dl, top, dgap
+
+    def _extend_live(self, ctx, d, xb, x):
+        """Before a line search from x toward xb: the rows live somewhere on the segment join
+        the live rows, lagged at x (``extend_live``)."""
+        h2k = self.params.contact_stiffness / (ctx.dt * ctx.dt)
+        for rows, nrm, tgt, mu, coef, kr, lam, _lp, is_vf, mark, sel, ns in d.rows["sets"]:
+            ns[0] = extend_live(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k, rows, nrm,
+                                tgt, is_vf, coef, kr, lam, mark, sel)
 
     def _row_residuals(self, ctx, d, x, xt):
         """The contact rows' complementarity residuals at the Newton solution x into the
@@ -717,9 +773,9 @@ class ImplicitSolver(Behavior):
         eps = self.params.friction_velocity * ctx.dt
         s = ctx.stats
         worst = 0.0
-        for rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf in d.rows["sets"]:
+        for rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf, _mk, sel, ns in d.rows["sets"]:
             nr, cr = row_residuals(x, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef,
-                                        kr, lam, mu, eps, xt, d.compliant)
+                                   kr, lam, mu, eps, xt, d.compliant, sel[:ns[0]])
             for key, v in (("max_complementarity", nr), ("max_cone_violation", cr)):
                 s[key] = max(s.get(key, 0.0), v)
             worst = max(worst, nr)
@@ -739,6 +795,23 @@ class ImplicitSolver(Behavior):
         d.fixed_blocks = np.flatnonzero(fixed[d.brow] | fixed[d.A.indices])
         d.fixed_diag = d.diag[fixed]
 
+    def _limit_energy(self, d, x, mode, opts, grad, A):
+        """The strain-limit terms of the hard distance rows (``hard_limit``, ``limit_energy``)
+        at x; 0 when off."""
+        P = self.params
+        if P.hard_limit <= 0.0:
+            return 0.0
+        E = 0.0
+        for b, bd, st, maps, hloc in d.energies:
+            if type(b).__name__ not in LIMITED_TYPES:
+                continue
+            idx, rest, alpha = bd.idx, bd.rest, bd.alpha
+            if len(idx) == 0 or idx.shape[1] != 2 or len(st) != 1 or st[0].shape != idx.shape:
+                continue
+            E += limit_energy(x, idx, rest, alpha, opts.hard_k, P.hard_limit,
+                              P.hard_limit_stiffness, mode, grad, A, maps[0])
+        return E
+
     def _newton(self, ctx, d, xs, xt, opts, c):
         """Newton with a backtracking line search on E from ``xs`` (in place); Dirichlet
         vertices (``d.cur_fixed``) stay where ``xs`` has them."""
@@ -753,13 +826,24 @@ class ImplicitSolver(Behavior):
         if d.rows.get("sets"):  # rows are new every substep: lag from the start positions
             for st in d.rows["sets"]:
                 st[6][:] = 0.0
-            self._lag_rows(ctx, d, w["x0"])
+                st[9][:] = 0
+            # the live rows only (exact, ``lag_rows_live``; all rows with contact_reach, which
+            # the extensions below do not cover)
+            live = P.contact_reach == 0.0
+            self._lag_rows(ctx, d, w["x0"], live=live)
             if P.violated_rows == "hold":
                 low = 0
-                for rows, nrm, tg, _mu, coef, *_ in d.rows["sets"]:
-                    low += start_targets(w["x0"], rows, nrm, tg, coef, tg)
+                for rows, nrm, tg, _mu, coef, _k, _l, _p, _v, _m, sel, ns in d.rows["sets"]:
+                    low += start_targets(w["x0"], rows, nrm, tg, coef, tg, sel[:ns[0]])
                 c["held_rows"] += low
-                self._lag_rows(ctx, d, w["x0"])
+                self._lag_rows(ctx, d, w["x0"], live=live)
+            if live:  # rows that the start guess and x^n may close, lagged at x^n
+                self._extend_live(ctx, d, xs, w["x0"])
+                if P.start_at_rest:
+                    xr = w["pp"]
+                    np.copyto(xr, w["x0"])
+                    np.copyto(xr, xs, where=fixed[:, None])
+                    self._extend_live(ctx, d, xr, w["x0"])
         contacts = d.shapes is not None or bool(d.rows.get("sets"))
         n_it = P.contact_newton_iterations if contacts else P.newton_iterations
         if P.start_at_rest and d.rows.get("sets"):  # the lower of E(guess) and E(x^n)
@@ -790,6 +874,8 @@ class ImplicitSolver(Behavior):
             alpha = 1.0
             if P.line_search and slope < 0.0:
                 xtry = xs + dx
+                if d.rows.get("sets"):  # rows that the segment xs -> xs + dx may close
+                    self._extend_live(ctx, d, xtry, xs)
                 slack = 1e-12 * abs(E0)  # rounding of E near convergence
                 for _ in range(30):
                     E1 = self._potential(ctx, d, xtry, 0, opts, xt, None)
@@ -813,7 +899,7 @@ class ImplicitSolver(Behavior):
                     lagged_ok = (float(np.abs(C["lam"] - C["lam_prev"]).max())
                                  <= P.contact_tolerance * top)
             if d.rows.get("sets"):
-                act, dl, top, dgap = self._lag_rows(ctx, d, xs)
+                act, dl, top, dgap = self._lag_rows(ctx, d, xs, live=True)
                 if top > 0.0 and dl > P.contact_tolerance * top and dgap > gap_tol:
                     lagged_ok = False
             if c["step_v"] < P.newton_tolerance and lagged_ok:
