@@ -314,6 +314,55 @@ def test_pair_buffer_reuse_and_determinism():
     assert np.array_equal(a, c)
 
 
+def test_sequential_task_order_gives_the_same_pairs(monkeypatch):
+    """With one thread the traversal tasks run in their order (``SEQUENTIAL_ONE_THREAD``,
+    faster: neighbouring tasks touch neighbouring nodes); every task writes at its own offset,
+    so the pairs and their order are those of the shuffled order, in the single-pass query
+    (a buffer that knows the pair count) and the two-pass one, with space-time boxes too."""
+    import numba
+
+    rng = np.random.default_rng(5)
+    X0, _, _, F = crumpled_cloth(rng, nx=48, ny=40)
+    X1 = X0 + [0.0, 0.0, -0.05] + 0.002 * rng.standard_normal(X0.shape)  # falling as a whole
+    E = bp.mesh_edges(F)
+    V = np.arange(len(X0))
+    le, he = bp.primitive_boxes(X0, E, X1, 0.01)
+    lv, hv = bp.primitive_boxes(X0, V, X1, 0.01)
+    lf, hf = bp.primitive_boxes(X0, F, X1, 0.01)
+    be, bv, bf = bp.build_bvh(le, he), bp.build_bvh(lv, hv), bp.build_bvh(lf, hf)
+    se = bp.spacetime_boxes(be, X0, E, X1, 0.01)
+    sv = bp.spacetime_boxes(bv, X0, V, X1, 0.01)
+    sf = bp.spacetime_boxes(bf, X0, F, X1, 0.01)
+
+    def queries():
+        out = []
+        for st in (False, True):
+            for reuse in (False, True):
+                b1, b2 = bp.PairBuffer(4), bp.PairBuffer(4)
+                for _ in range(2 if reuse else 1):  # the second call: one pass
+                    e = bp.query_self(be, E, out=b1, st=se if st else None)
+                    p = bp.query_pairs(bv, bf, V, F, out=b2, st_a=sv if st else None,
+                                       st_b=sf if st else None)
+                out += [e.copy(), p.copy()]
+        return out
+
+    old = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        monkeypatch.setattr(bp, "SEQUENTIAL_ONE_THREAD", False)
+        shuffled = queries()
+        order = bp._task_order(2000)
+        assert not np.array_equal(order, np.arange(2000))  # the shuffled order is not the order
+        monkeypatch.setattr(bp, "SEQUENTIAL_ONE_THREAD", True)
+        assert np.array_equal(bp._task_order(2000), np.arange(2000))
+        sequential = queries()
+    finally:
+        numba.set_num_threads(old)
+    assert len(shuffled[0]) > 1000 and len(shuffled[4]) < len(shuffled[0])  # st drops pairs
+    for a, b in zip(shuffled, sequential):
+        assert np.array_equal(a, b)
+
+
 def test_needs_rebuild_and_update():
     rng = np.random.default_rng(4)
     X0, X1, _, F = make_mesh("cloth", 4)

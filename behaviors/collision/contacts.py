@@ -105,9 +105,34 @@ SPACETIME = True
 #: final rounds), and the sleeve was thrown out of the crease at 0.89 m/s (frame 33) against its
 #: 0.73 m/s bound (0.65 with it off); ``tests/test_collision_spacetime.py`` builds that case
 #: (1,114 pairs within their target at the iterate missing). It would save more: ``--ab
-#: --ab-mode all --ab-ref known`` gives 0.92x (64 x 64) and 0.62x (128 x 128) of the CPU with
-#: ``SPACETIME`` alone
+#: --ab-mode all --ab-ref known`` gives 0.92x (64 x 64) and 0.62x (128 x 128) of the CPU
+#: with ``SPACETIME`` alone. Made safe by an incremental re-detection (built and measured, not
+#: kept: before every contact pass of the iterations, query only the primitives of the
+#: vertices whose iterate left the common path and add the pairs they reach; the test above
+#: then finds no pair missing and the elbow's crease speed stays under its bound) it costs far
+#: more: 1.91x the CPU at 64 x 64 (frames 6-16) and 4.04x at 128 x 128 (frames 6-14), no
+#: intersections. The cause, measured on the 64 x 64 drop (frames 8-11): the common path
+#: tolerates a deviation of only s = infl_min - target_max / 2 = 1 mm (2 mm thickness, 2 mm
+#: margin), and in contact frames the iterate leaves its predicted end by more
+#: than that for 2,000-3,500 of the 4,225 vertices at the first contact pass and for all of them
+#: by the end of a substep (2,450-3,400 by then with the space-time boxes inflated 5 mm more),
+#: so a query runs in every contact pass (16 a frame) and adds up to 57k rows (1.4M in 16
+#: frames); the rows grow from 92-116k to 143-221k within a substep. Left off
 SPACETIME_PREDICTED = False
+#: the swept-box detections (over the predicted motion) and the space-time ones (final rounds,
+#: CCD) query into their own pair buffers: a buffer sizes the single traversal pass's scratch
+#: from its previous query, and alternating 222k swept and 78k space-time edge pairs (64 x 64
+#: drop, frame 10) overflowed it, so 12-74k pairs were traversed twice in 4 queries a frame.
+#: Same pairs in the same order either way (False: one buffer, for benchmarks). Measured with
+#: ``collision_scaling.py --ab --sizes 64 --frames 16 --from-frame 6 --ab-flag SPLIT_BUFFERS``
+#: (1 thread): median per-frame CPU ratio 0.979
+SPLIT_BUFFERS = True
+#: detections write the primitives' boxes, the space-time boxes and the filters' rows into
+#: arrays kept per group (``_row_buffers``, ``_scratch``) instead of new ones every time (the
+#: trees copy the boxes, the packed rows are copies). Same results. Measured with
+#: ``collision_scaling.py --ab --sizes 64 --frames 16 --from-frame 6 --ab-flag REUSE_BUFFERS``
+#: (1 thread): median per-frame CPU ratio 0.960 (0.972 with the rows alone)
+REUSE_BUFFERS = True
 
 
 @dataclass
@@ -146,8 +171,13 @@ class _Group:
     near_d: np.ndarray = None  # (n_vertices, n_el) float64, inf when unset
     near_s: np.ndarray = None  # (n_vertices, n_el) int8
     stamp: int = 1
+    # pair buffers of the swept-box and of the space-time detections (``SPLIT_BUFFERS``)
     buf_vf: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
     buf_ee: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
+    buf_vf_st: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
+    buf_ee_st: bp.PairBuffer = field(default_factory=lambda: bp.PairBuffer(1024))
+    # detection scratch (``_row_buffers``, ``_scratch``; ``REUSE_BUFFERS``)
+    bufs: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -323,7 +353,8 @@ class CollisionDetect(Behavior):
         kin = m.particle_kinematic
         if kin.any():
             x1[kin] = ctx.control.kinematic_q[kin]
-        tolerant = _detect_all(d, x, x1, st.particle_qd, h, SPACETIME_PREDICTED)
+        tolerant = _detect_all(d, x, x1, st.particle_qd, h,
+                               SPACETIME and SPACETIME_PREDICTED)
         d.tolerant_count = tolerant
         ctx.stats["contacts_vf"] = ctx.stats.get("contacts_vf", 0) + len(d.vf)
         ctx.stats["contacts_ee"] = ctx.stats.get("contacts_ee", 0) + len(d.ee)
@@ -352,14 +383,48 @@ class CollisionDetect(Behavior):
                          f"{len(g.edges)} edges" for g in d.groups)
 
 
+def _row_buffers(g, kind, n):
+    """Arrays for the filters' output rows of ``n`` candidates (rows, normals, targets,
+    friction, one-sided flags), every kept row written by the filter and packed into copies
+    (``_pack``). With ``REUSE_BUFFERS`` views of buffers of the group, grown by half when too
+    small; else new zeroed arrays."""
+    if not REUSE_BUFFERS:
+        return (np.zeros((n, 4), np.int64), np.zeros((n, 3)), np.zeros(n), np.zeros(n),
+                np.zeros(n, np.bool_))
+    b = g.bufs.get(kind)
+    if b is None or len(b[2]) < n:
+        m = max(n, int(1.5 * len(b[2])) if b is not None else n)
+        b = g.bufs[kind] = (np.empty((m, 4), np.int64), np.empty((m, 3)), np.empty(m),
+                            np.empty(m), np.empty(m, np.bool_))
+    return tuple(a[:n] for a in b)
+
+
+def _scratch(g, key, shape):
+    """An array of ``shape`` (float64) kept in the group under ``key`` (``REUSE_BUFFERS``), or
+    None (the callee allocates) when not reusing."""
+    if not REUSE_BUFFERS:
+        return None
+    a = g.bufs.get(key)
+    if a is None or a.shape != shape:
+        a = g.bufs[key] = np.empty(shape)
+    return a
+
+
 def _detect_group(g, x, x1, infl, v, h, spacetime=False):
+    """Candidates of group ``g`` for the motion x -> x1 (boxes inflated by ``infl`` [m] per
+    vertex), filtered into rows."""
     vf = (np.zeros((0, 4), np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
           np.zeros(0, np.bool_), g.strength)
     ee = (np.zeros((0, 4), np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0), g.strength)
     tol_count = 0
     if g.do_vf and len(g.tris):
-        lo_v, hi_v = bp.primitive_boxes(x, g.verts, x1, infl)
-        lo_t, hi_t = bp.primitive_boxes(x, g.tris, x1, infl)
+        nv, nt = len(g.verts), len(g.tris)
+        lo_v, hi_v = bp.primitive_boxes(x, g.verts, x1, infl,
+                                        _scratch(g, "lo_v", (nv, 3)),
+                                        _scratch(g, "hi_v", (nv, 3)))
+        lo_t, hi_t = bp.primitive_boxes(x, g.tris, x1, infl,
+                                        _scratch(g, "lo_t", (nt, 3)),
+                                        _scratch(g, "hi_t", (nt, 3)))
         bv = bp.build_bvh(lo_v, hi_v)
         bt = bp.build_bvh(lo_t, hi_t)
         sv = st = None
@@ -367,17 +432,16 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
             # kinematic objects never collide with each other: their subtrees are not paired
             # and only the self pairs of an element are tested in space-time
             ev = g.vert_elem[g.verts]
-            sv = bp.spacetime_boxes(bv, x, g.verts, x1, infl, ~g.kinematic_el[ev], ev)
+            sv = bp.spacetime_boxes(bv, x, g.verts, x1, infl, ~g.kinematic_el[ev], ev,
+                                    _scratch(g, "sv", (2 * nv - 1, 14)))
             st = bp.spacetime_boxes(bt, x, g.tris, x1, infl, ~g.kinematic_el[g.tri_elem],
-                                    g.tri_elem)
-        cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=g.buf_vf, st_a=sv, st_b=st)
+                                    g.tri_elem, _scratch(g, "st", (2 * nt - 1, 14)))
+        split = spacetime and SPLIT_BUFFERS
+        cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=g.buf_vf_st if split else g.buf_vf,
+                              st_a=sv, st_b=st)
         n = len(cand)
         if n:
-            rows = np.zeros((n, 4), np.int64)
-            nrm = np.zeros((n, 3))
-            tgt = np.zeros(n)
-            mu = np.zeros(n)
-            one = np.zeros(n, np.bool_)
+            rows, nrm, tgt, mu, one = _row_buffers(g, "vf", n)
             g.stamp += 1
             k, tc = _filter_vf(cand, g.verts, g.tris, g.tri_elem, g.vert_elem, g.allow,
                                g.tolerant, g.th_out, g.th_in, g.friction, g.visible, g.setmask,
@@ -388,17 +452,19 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
             vf = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, one[:k], g.strength)
     if g.do_ee and len(g.edges):
         vn = _vertex_normals(x, g) if g.one_sided.any() else np.zeros((0, 3))
-        lo_e, hi_e = bp.primitive_boxes(x, g.edges, x1, infl)
+        ne = len(g.edges)
+        lo_e, hi_e = bp.primitive_boxes(x, g.edges, x1, infl,
+                                        _scratch(g, "lo_e", (ne, 3)),
+                                        _scratch(g, "hi_e", (ne, 3)))
         be = bp.build_bvh(lo_e, hi_e)
         se = bp.spacetime_boxes(be, x, g.edges, x1, infl, ~g.kinematic_el[g.edge_elem],
-                                g.edge_elem) if spacetime else None
-        cand = bp.query_self(be, g.edges, out=g.buf_ee, st=se)
+                                g.edge_elem, _scratch(g, "se", (2 * ne - 1, 14))) \
+            if spacetime else None
+        cand = bp.query_self(be, g.edges, st=se,
+                             out=g.buf_ee_st if spacetime and SPLIT_BUFFERS else g.buf_ee)
         n = len(cand)
         if n:
-            rows = np.zeros((n, 4), np.int64)
-            nrm = np.zeros((n, 3))
-            tgt = np.zeros(n)
-            mu = np.zeros(n)
+            rows, nrm, tgt, mu, _ = _row_buffers(g, "ee", n)
             k, tc = _filter_ee(cand, g.edges, g.edge_elem, g.allow, g.tolerant, g.th_out,
                                g.friction, g.visible, g.setmask, g.one_sided, x, v, h,
                                g.restitution, g.margin, rows, nrm, tgt, mu, vn, g.crossed,

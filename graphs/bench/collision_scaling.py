@@ -19,7 +19,7 @@ frames, CPU and wall.
 pairs off (``--ab-ref``, default ``off``: swept boxes in every detection) and on (``--ab-mode``:
 ``known``, the detections over a known motion, i.e. the final rounds and the CCD safe step, as
 ``contacts.SPACETIME``; ``all``, the detection over the predicted motion too,
-``contacts.SPACETIME_PREDICTED``), two simulations in this process
+``contacts.SPACETIME_PREDICTED``, unsafe: see it), two simulations in this process
 stepped frame by frame in alternating order (ABBA), so machine load hits both
 alike: median CPU ms per frame of each and the median of the per-frame CPU ratio on/off over
 the contact frames, with the intersecting triangle pairs (max over frames) and the largest edge
@@ -27,6 +27,11 @@ strain of each. Run with ``NUMBA_NUM_THREADS=1`` for CPU-time comparisons::
 
     NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/collision_scaling.py --ab --sizes 64 \
         --frames 20
+
+``--ab --ab-flag NAME``: both at ``--ab-mode`` and the boolean ``contacts.NAME`` False ("off")
+against True ("on"), e.g. ``SPLIT_BUFFERS`` (``broadphase.NAME``: a boolean of the broad
+phase, e.g. ``broadphase.SEQUENTIAL_ONE_THREAD``; several, comma-separated, switch
+together). Whether the last positions of the two are bitwise equal is printed per size.
 """
 
 from __future__ import annotations
@@ -84,9 +89,10 @@ _FLAGS = ("SPACETIME", "SPACETIME_PREDICTED")
 
 
 def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "known",
-           ref: str = "off") -> dict:
+           ref: str = "off", flag: str = "") -> dict:
     """The scene at n x n with the space-time setting ``ref`` (as "off") and ``mode`` (as
-    "on"), interleaved (see the module docstring)."""
+    "on"), interleaved (see the module docstring); with ``flag`` (a boolean of
+    ``contacts``), both at ``mode`` and that flag False ("off") / True ("on")."""
     from lokigraph.behaviors.collision import contacts as C
     from lokigraph.behaviors.collision.intersect import find_intersections
     from lokigraph.compile import compile_scene
@@ -99,9 +105,17 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "know
 
     default = [getattr(C, k) for k in _FLAGS]
 
+    from lokigraph.behaviors.collision import broadphase as B
+
+    flags = [(B if f.startswith("broadphase.") else C, f.split(".")[-1])
+             for f in flag.split(",") if f]
+    flag_default = [getattr(m, f) for m, f in flags]
+
     def setting(on):
         for k, val in zip(_FLAGS, AB_SETTINGS[mode if on else ref]):
             setattr(C, k, val)
+        for m, f in flags:
+            setattr(m, f, on)
 
     runs = {}
     for on in (False, True):
@@ -132,12 +146,16 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "know
     finally:
         for k, val in zip(_FLAGS, default):
             setattr(C, k, val)
+        for (m, f), val in zip(flags, flag_default):
+            setattr(m, f, val)
     k = from_frame - 1
     off, on = (np.array(runs[b]["cpu"]) for b in (False, True))
     return {"resolution": n, "cpu_ms_off": 1e3 * float(np.median(off[k:])),
             "cpu_ms_on": 1e3 * float(np.median(on[k:])),
             "ratio": float(np.median(on[k:] / off[k:])),
             "pairs_off": runs[False]["pairs"], "pairs_on": runs[True]["pairs"],
+            "same_positions": bool(np.array_equal(runs[False]["sim"].state.particle_q,
+                                                  runs[True]["sim"].state.particle_q)),
             "strain_off": runs[False]["strain"], "strain_on": runs[True]["strain"]}
 
 
@@ -146,9 +164,13 @@ def main_ab(args):
     with tempfile.TemporaryDirectory() as tmp:
         for n in args.sizes:
             rows.append(run_ab(n, args.frames, args.from_frame, Path(tmp), args.ab_mode,
-                               args.ab_ref))
-    print(f"frames {args.from_frame}..{args.frames} timed (medians), space-time boxes "
-          f"'{args.ab_ref}' (off) / '{args.ab_mode}' (on), interleaved")
+                               args.ab_mode if args.ab_flag else args.ab_ref, args.ab_flag))
+    if args.ab_flag:
+        print(f"frames {args.from_frame}..{args.frames} timed (medians), space-time boxes "
+              f"'{args.ab_mode}', {args.ab_flag} False (off) / True (on), interleaved")
+    else:
+        print(f"frames {args.from_frame}..{args.frames} timed (medians), space-time boxes "
+              f"'{args.ab_ref}' (off) / '{args.ab_mode}' (on), interleaved")
     print("| res | CPU ms/frame off | CPU ms/frame on | median per-frame ratio on/off | "
           "pairs off / on (max) | max strain % off / on |")
     print("|---|---|---|---|---|---|")
@@ -156,6 +178,8 @@ def main_ab(args):
         print(f"| {r['resolution']} | {r['cpu_ms_off']:.0f} | {r['cpu_ms_on']:.0f} | "
               f"{r['ratio']:.3f} | {r['pairs_off']} / {r['pairs_on']} | "
               f"{100 * r['strain_off']:.1f} / {100 * r['strain_on']:.1f} |")
+    for r in rows:
+        print(f"{r['resolution']}: last positions bitwise equal: {r['same_positions']}")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "scaling_collision_ab.json").write_text(json.dumps(
@@ -175,6 +199,9 @@ def main(argv=None):
                     help="--ab: the setting timed as 'on'")
     ap.add_argument("--ab-ref", choices=sorted(AB_SETTINGS), default="off",
                     help="--ab: the setting timed as 'off'")
+    ap.add_argument("--ab-flag", default="", help="--ab: a boolean of contacts (e.g. "
+                    "SPLIT_BUFFERS; broadphase.NAME: of the broad phase; several comma-separated) "
+                    "timed False (off) / True (on), both at --ab-mode")
     args = ap.parse_args(argv)
     if not 2 <= args.from_frame <= args.frames:
         ap.error("--from-frame must be in 2..--frames")
