@@ -34,8 +34,21 @@ SPEED_BOUND = 2.0 * TIP_SPEED  # 1.47 m/s, any sleeve vertex
 PINCH_SPEED_BOUND = TIP_SPEED  # 0.73 m/s, sleeve vertices within 0.15 m of the joint
 
 
-def _scene_text(mechanisms):
+#: the opt-in settings of graphs/bench/cloth_strain.py 'in_contact': long-range rows, the
+#: inextensible strain limit, edges near contacts compliant in compression
+IN_CONTACT = {"stretch": {"long_range_levels": 5, "sweeps": 3, "inextensible_compression": 10.0},
+              "strain_limit": {"inextensible_max_strain": 0.05,
+                               "inextensible_joint_iterations": 10}}
+
+
+def _scene_text(mechanisms, overrides=None):
     text = (EXAMPLES / "sleeve_elbow.yaml").read_text()
+    if overrides:
+        import json
+
+        text = text.replace("lokigraph: 1\n", f"lokigraph: 1\ngraph_overrides: "
+                            f"{json.dumps(overrides)}\n", 1)
+        assert "graph_overrides" in text
     if not mechanisms:  # no compliant kinematics, proximity tolerance and recovery off
         new = text.replace("Kinematic: {stiffness: soft}", "Kinematic: {}")
         new = re.sub(r"\n +stiffness: soft *\n", "\n", new)
@@ -59,11 +72,11 @@ def _axis_distance(p, a, b):
     return np.linalg.norm(np.cross(p - a, d), axis=1)
 
 
-def _elbow(tmp_path, mechanisms=True, frames=60):
+def _elbow(tmp_path, mechanisms=True, frames=60, overrides=None):
     for m in MAPS:
         shutil.copy(EXAMPLES / m, tmp_path / m)
     p = tmp_path / f"elbow_{mechanisms}.yaml"
-    p.write_text(_scene_text(mechanisms))
+    p.write_text(_scene_text(mechanisms, overrides))
     c = compile_file(p)
     sim = Simulation(c)
     sl = c.scene.element("sleeve")
@@ -140,7 +153,8 @@ def test_sleeve_elbow_with_mechanisms(tmp_path):
     # sleeve squeezed along the closing crease: with 14, 16 and 17 solver iterations instead
     # of 15 it measured 1.27, 1.29 and 1.22 m/s (0.95, 0.86, 1.15, 1.39 m/s at 14-17 with the
     # opt-in long-range rows and inextensible strain limit), so a change that moves the
-    # trajectory at all can fail it; the bound itself is the physical one
+    # trajectory at all can fail it; the bound itself is the physical one (see
+    # test_sleeve_elbow_in_contact for the cause and the setting that holds it)
     assert r["vpinch"][3:].max() < PINCH_SPEED_BOUND
     assert (r["pen"] == 0).all()  # measured 0 in every frame
     assert (r["self"] == 0).all()  # measured 0: the sleeve never passes through itself
@@ -150,6 +164,29 @@ def test_sleeve_elbow_with_mechanisms(tmp_path):
     # after straightening it is back on its animation up to the sag under the sleeve's weight
     # (the painted band reaches round towards the top of the arm the sleeve hangs on)
     assert r["depth"][-6:].max() < 0.002  # measured 0.5 mm
+
+
+@pytest.mark.slow
+def test_sleeve_elbow_in_contact(tmp_path):
+    """The whole run with the opt-in long-range rows and inextensible strain limit and the
+    edges near contacts compliant in compression (IN_CONTACT), at the default 15 solver
+    iterations: calm around the crease (measured calm at 14 to 17 as well), and no
+    intersection. With hard compression the pinched sleeve
+    is held between contacts, long-range rows and strain limit (a vertex's edges at -20 % and
+    +20 % strain in one iteration, the vertex moved 3-4 mm back and forth by the edges in
+    every iteration) and the frame-end speed around the crease is the residue of that fight:
+    0.95, 0.86, 1.15, 1.39 m/s at 14-17 iterations (measured)."""
+    r = _elbow(tmp_path, mechanisms=True, overrides=IN_CONTACT)
+    _report(r, "in_contact")
+    assert r["finite"]
+    assert r["vmax"][3:].max() < SPEED_BOUND
+    # measured 0.59 m/s (frame 16); 0.68, 0.64, 0.55 m/s at 14, 16, 17 iterations
+    assert r["vpinch"][3:].max() < PINCH_SPEED_BOUND
+    assert (r["pen"] == 0).all()  # measured 0 in every frame
+    assert (r["self"] == 0).all()  # measured 0
+    assert r["follow"].max() == 0.0
+    assert r["depth"][19:28].max() > 0.01  # measured 31.8 mm at most
+    assert r["depth"][-6:].max() < 0.002
 
 
 @pytest.mark.slow

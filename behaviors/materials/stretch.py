@@ -301,17 +301,19 @@ def long_range_rows(X, edges, levels, cos_min=0.95):
 # ------------------------------------------------------------------ Nucleus constraint behavior
 
 
-def _project_edges(ctx, d, p):
+def _project_edges(ctx, d, p, alpha2=None):
     """Distance rows of a Packed set (stretch edges, stitches): damped where it has beta,
-    sequential or coloured parallel by its size."""
+    sequential or coloured parallel by its size. ``alpha2``: compression compliances to use
+    instead of ``d.alpha2`` (the stretch set's Nucleus compliances)."""
     w = ctx.model.particle_inv_mass
+    a2 = d.alpha2 if alpha2 is None else alpha2
     if d.beta is not None:
         fn = project_stretch_damped_seq if d.sequential else project_stretch_damped
-        fn(p, ctx.state.particle_q, w, d.idx, d.rest, d.alpha, d.alpha2, d.beta, d.lam,
+        fn(p, ctx.state.particle_q, w, d.idx, d.rest, d.alpha, a2, d.beta, d.lam,
            ctx.dt, d.color_ptr)
     else:
         fn = project_stretch_seq if d.sequential else project_stretch
-        fn(p, w, d.idx, d.rest, d.alpha, d.alpha2, d.lam, ctx.dt, d.color_ptr)
+        fn(p, w, d.idx, d.rest, d.alpha, a2, d.lam, ctx.dt, d.color_ptr)
 
 
 class StretchParams(ConstraintParams):
@@ -327,13 +329,16 @@ class StretchParams(ConstraintParams):
                                    "with strain_limit.inextensible_max_strain 0.05 as well: "
                                    "cloth_on_sphere 7.5 %, skirt_walk 5.0 %, sleeve_elbow "
                                    "20.7 %. Opt-in: in the slow elbow test the sleeve caught in "
-                                   "the crease is squeezed out faster than the forearm moves "
-                                   "(0.86 m/s at frame 26 against the 0.73 m/s bound, 0.65 "
-                                   "without them). That frame-end maximum swings with any small "
-                                   "change (0.72 to 1.4 m/s over levels, sweeps, passes; 0.95 to "
-                                   "1.39 at 14-17 solver iterations, and 1.22 to 1.29 without "
-                                   "the rows and limit at 14, 16, 17), so no setting was found "
-                                   "that holds it.")
+                                   "the crease moves faster than the forearm (0.86 m/s at frame "
+                                   "26 against the 0.73 m/s bound; 0.95 to 1.39 at 14-17 solver "
+                                   "iterations, and 0.65 to 1.29 without the rows and limit): "
+                                   "hard compression rows fight the contacts, the rows and the "
+                                   "limit in the pinch; with inextensible_compression 10 as "
+                                   "well, 0.55 to 0.68 m/s at 14-17 iterations and "
+                                   "cloth_on_sphere 6.6 %. The quick stress case of a cloth "
+                                   "starting interpenetrated still ends with one crossing pair "
+                                   "more than after its first frame with them (see "
+                                   "strain_limit.inextensible_max_strain).")
     sweeps: int = Field(1, ge=1, le=100, description="Edge sweeps per stretch pass when the "
                         "set holds inextensible cloth (1 = default; other sets always 1). "
                         "Edges are cheap next to contacts; more sweeps carry corrections "
@@ -341,6 +346,24 @@ class StretchParams(ConstraintParams):
                         "3 sweeps: 47 -> 26 %). Cost of 5 levels + 3 sweeps, CPU ms/frame "
                         "before -> after in one run: 534 -> 482 on the 64 x 64 drop (fewer "
                         "active contacts), 15 -> 30 on cloth_pinned (32 x 32, no contacts).")
+    inextensible_compression: float | None = Field(
+        None, gt=0, description="Membrane compression stiffness E t [N/m] of the edges of "
+        "inextensible DiscreteShell cloth (youngs_modulus null) that have a vertex in a "
+        "contact row of the substep (the detection's candidates), times the shell's "
+        "compression_ratio (0 keeps compression off), in the Nucleus projection; other edges "
+        "and the implicit solver's energy stay hard in compression; null = hard everywhere "
+        "(default). Cloth squeezed in contact buckles instead of pushing back: with hard "
+        "compression rows, a sleeve pinched in a closing elbow crease is held between the "
+        "contacts, the long-range rows and the strain limit (edges of one vertex at -20 % and "
+        "+20 % in the same iteration, the vertex moved 3-4 mm back and forth in every "
+        "iteration), and its frame-end speed is the residue of that fight. Measured with "
+        "long_range_levels 5, sweeps 3 and strain_limit.inextensible_max_strain 0.05 "
+        "(graphs/bench/cloth_strain.py 'in_contact'), sleeve speed within 0.15 m of the elbow "
+        "joint over 60 frames (tests/test_elbow.py; bound 0.73 m/s) at 14/15/16/17 solver "
+        "iterations: hard 0.95/0.86/1.15/1.39 m/s, 10 N/m 0.68/0.59/0.64/0.55 m/s, 100 N/m "
+        "1.15/1.01/0.85/0.78 m/s; compression off 0.80/0.79/0.80/0.83 (a fold of the collapsed "
+        "sleeve falls freely once the crease opens). Compliant on every edge instead of only "
+        "near contacts, the 10 N/m flag in wind reaches 18.3 % strain (5.0 % hard).")
     joint_long_range: bool = Field(False, description="Project the long-range rows also in "
                                    "every joint pass of the final collision rounds and of the "
                                    "CCD rounds (before the strain limits and the contacts), "
@@ -359,10 +382,15 @@ class StretchParams(ConstraintParams):
 
 @dataclass
 class _StretchData(Packed):
-    """The packed edges plus the long-range rows (None when there are none) and the sweeps."""
+    """The packed edges plus the long-range rows (None when there are none), the sweeps and
+    the compression compliances of the Nucleus projection (None: ``alpha2``)."""
 
     long_range: Packed | None = None
     sweeps: int = 1
+    alpha2_nucleus: np.ndarray | None = None
+    #: the compression compliances of this substep (alpha2_nucleus on edges near contacts)
+    alpha2_substep: np.ndarray | None = None
+    near: np.ndarray | None = None  # scratch: vertices in a contact row of the substep
 
 
 class StretchConstraint(ConstraintBehavior):
@@ -403,8 +431,12 @@ class StretchConstraint(ConstraintBehavior):
                 else:
                     a = L * L / (c.youngs_modulus * c.thickness * np.maximum(Ae, 1e-300))
                 ac = _compress(a, c.compression_ratio)
+                acn = ac
+                kc = self.params.inextensible_compression
+                if c.youngs_modulus is None and kc is not None and c.compression_ratio > 0:
+                    acn = L * L / (kc * c.compression_ratio * np.maximum(Ae, 1e-300))
                 beta = np.full(len(edges), c.stretch_damping)
-                parts.append((edges + off, L * c.rest_length_scale, a, ac, beta))
+                parts.append((edges + off, L * c.rest_length_scale, a, ac, beta, acn))
             elif e.has(Rod) and len(g.edges) and not solved_directly(e):
                 c = e.get(Rod)
                 X = _rest(ctx, e, c)
@@ -412,8 +444,9 @@ class StretchConstraint(ConstraintBehavior):
                 L = np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1)
                 a = (np.zeros(len(edges)) if c.youngs_modulus is None
                      else L / (c.youngs_modulus * np.pi * c.radius ** 2))
-                parts.append((edges + off, L * c.rest_length_scale, a,
-                              _compress(a, c.compression_ratio), np.zeros(len(edges))))
+                ac = _compress(a, c.compression_ratio)
+                parts.append((edges + off, L * c.rest_length_scale, a, ac, np.zeros(len(edges)),
+                              ac))
             elif e.has(Volume) and len(g.tetrahedra):
                 c = e.get(Volume)
                 X = _rest(ctx, e, c)
@@ -428,13 +461,22 @@ class StretchConstraint(ConstraintBehavior):
                 ids = np.array([key[tuple(r)] for r in te])
                 Ve = np.bincount(ids, np.repeat(np.abs(vol) / 6.0, 6), minlength=len(edges))
                 a = L * L / (c.youngs_modulus * np.maximum(Ve, 1e-300))
-                parts.append((edges + off, L, a, a, np.zeros(len(edges))))
+                parts.append((edges + off, L, a, a, np.zeros(len(edges)), a))
         cat = _concat(parts)
         if cat is None:
             return None
-        idx, L, a, ac, beta = cat
+        idx, L, a, ac, beta, acn = cat
         d = _StretchData.build(idx, L, a, ac, beta=beta if beta.any() else None)
         d.sweeps = int(self.params.sweeps) if shell else 1
+        if not np.array_equal(acn, ac):
+            # the rows in d's (coloured) order: edges are unique, so sorting matches them
+            src = np.lexsort((idx[:, 1], idx[:, 0]))
+            dst = np.lexsort((d.idx[:, 1], d.idx[:, 0]))
+            a2 = np.empty_like(acn)
+            a2[dst] = acn[src]
+            d.alpha2_nucleus = a2
+            d.alpha2_substep = d.alpha2.copy()
+            d.near = np.zeros(ctx.model.particle_count, bool)
         if lr_parts:
             pr = np.concatenate([q[0] for q in lr_parts])
             bound = np.concatenate([q[1] for q in lr_parts])
@@ -451,11 +493,27 @@ class StretchConstraint(ConstraintBehavior):
         fn(p, ctx.model.particle_inv_mass, lr.idx, lr.rest, lr.alpha, lr.alpha2, lr.lam,
            ctx.dt, lr.color_ptr)
 
+    def begin_substep(self, ctx, d):
+        """XPBD multipliers to zero; with ``inextensible_compression``, the compression
+        compliances of the substep: compliant on edges with a vertex in a contact row."""
+        super().begin_substep(ctx, d)
+        if d is None or d.alpha2_nucleus is None:
+            return
+        c = ctx.state.fields.get("contacts")
+        near = d.near
+        near[:] = False
+        if c is not None:
+            near[c.vf.ravel()] = True
+            near[c.ee.ravel()] = True
+        e = near[d.idx[:, 0]] | near[d.idx[:, 1]]
+        np.copyto(d.alpha2_substep, d.alpha2)
+        np.copyto(d.alpha2_substep, d.alpha2_nucleus, where=e)
+
     def project(self, ctx, d, p):
         if d.long_range is not None:
             self._project_long_range(ctx, d.long_range, p)
         for _ in range(d.sweeps):
-            _project_edges(ctx, d, p)
+            _project_edges(ctx, d, p, d.alpha2_substep)
 
     def project_joint(self, ctx, d, p):
         """Called by the final collision rounds and the CCD rounds before the strain limits

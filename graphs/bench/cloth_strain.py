@@ -4,8 +4,10 @@ settings, every setting stepped frame by frame in turn in one process (machine l
 alike):
 
 * ``long_range``: ``stretch: {long_range_levels: 5, sweeps: 3}``;
-* ``in_contact``: that plus ``strain_limit: {inextensible_max_strain: 0.05,
-  inextensible_joint_iterations: 10}``;
+* ``in_contact_hard``: that plus ``strain_limit: {inextensible_max_strain: 0.05,
+  inextensible_joint_iterations: 10}`` (edges hard in compression);
+* ``in_contact``: that plus ``stretch: {inextensible_compression: 10}`` (edges near contacts
+  compliant in compression);
 * ``in_contact+redetect``: that plus ``collisions: {redetect: true}``;
 * ``tight``: ``in_contact`` with ``stretch: {joint_long_range: true}``, ``strain_limit:
   {inextensible_max_strain: 0.02, inextensible_joint_iterations: 40}``.
@@ -44,12 +46,15 @@ if str(ROOT) not in sys.path:
 
 DEFAULTS = {}
 LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3}}
-IN_CONTACT = {**LONG_RANGE, "strain_limit": {"inextensible_max_strain": 0.05,
-                                             "inextensible_joint_iterations": 10}}
+IN_CONTACT_HARD = {**LONG_RANGE, "strain_limit": {"inextensible_max_strain": 0.05,
+                                                  "inextensible_joint_iterations": 10}}
+IN_CONTACT = {**IN_CONTACT_HARD,
+              "stretch": {**LONG_RANGE["stretch"], "inextensible_compression": 10.0}}
 REDETECT = {**IN_CONTACT, "collisions": {"redetect": True}}
-TIGHT = {"stretch": {**LONG_RANGE["stretch"], "joint_long_range": True},
+TIGHT = {"stretch": {**IN_CONTACT["stretch"], "joint_long_range": True},
          "strain_limit": {"inextensible_max_strain": 0.02, "inextensible_joint_iterations": 40}}
-SETTINGS = [("defaults", DEFAULTS), ("long_range", LONG_RANGE), ("in_contact", IN_CONTACT),
+SETTINGS = [("defaults", DEFAULTS), ("long_range", LONG_RANGE),
+            ("in_contact_hard", IN_CONTACT_HARD), ("in_contact", IN_CONTACT),
             ("in_contact+redetect", REDETECT), ("tight", TIGHT)]
 SCENES = ("cloth_on_sphere", "skirt_walk", "sleeve_elbow", "cloth_pinned", "flag_wind")
 
