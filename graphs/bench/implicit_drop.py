@@ -35,7 +35,19 @@ CPU per impact frame, 64x64 frames 6-10 with the same motion (hard_limit 0, posi
 the same): 3.48 s before the live contact rows, 2.31 s with them (assemble 440 -> 190 ms,
 line-search energies 1,800 -> 330 ms, lagging 1,500 -> 750 ms at frame 9); 128x128 frames 6-9:
 21.4 s before, 12.9 s now (with hard_limit 0.02), of which CG 6.6 s and the collision detection
-7.1 s at frame 9.
+7.1 s at frame 9. The full 128x128 drop (24 frames; line_search_step / newton_step, the
+default): worst strain 4.75 % (frame 8) with both, the same frames until frame 13, then the
+old test stops after one cut step in frames 14, 20, 21, 23 (frames 14-24: 2.11-2.58 % /
+2.47-2.52 %), 0 intersecting pairs in every frame, 7.8 / 9.3 s CPU per frame (separate runs).
+
+Newton's stop test (``newton_stop``), interleaved in one process at 64x64, 24 frames
+(line_search_step, the test before / newton_step, the default): in frames 12, 15, 16, 19 and 23
+the old test stopped after one iteration whose step the line search had cut by 2^-9 (CG at its
+500 cap); with the new one every contact substep runs to the cap of 20. Worst strain 2.55 % /
+2.55 % (frames 12-24: up to 2.38 % / 2.08 %), Newton iterations 290 / 385, CG 98,430 / 151,416,
+CPU 1.84 / 2.59 s per frame (frames 2-24). cg_tolerance 1e-2 with each: 2.75 % / 2.75 %, CPU
+1.43 / 1.89 s per frame; not the default: it takes the whole trouser knee (72 frames) from
+2.14 to 2.33 m/s (bound 2.2), see graphs/bench/implicit_knee.py.
 """
 
 from __future__ import annotations
