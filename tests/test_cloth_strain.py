@@ -1,7 +1,7 @@
 """Inextensible cloth in motion and contact (issues #12, #13): the hierarchical long-range rows
-of the stretch constraint (``long_range_rows``) and the edge strain the opt-in settings reach
+of the stretch constraint (``long_range_rows``) and the edge strain the settings reach
 (``long_range_levels``/``sweeps``, the inextensible strain limit, compliant compression near
-contacts, ``collisions.redetect``).
+contacts: the defaults since issue #13; ``collisions.redetect`` opt-in).
 
 The row tests check the property the rows rely on (their bound is the rest length of a curve
 on the surface, so no isometric deformation can violate them); the scene tests assert the worst
@@ -82,8 +82,14 @@ def test_closed_tube_lines_and_bounds_on_curved_rest():
     assert ring.any() and np.all(bound[ring] > d[ring])  # chords of the ring are shorter
 
 
-#: the opt-in settings measured in the stretch / strain_limit parameter descriptions
-LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3}}
+#: the Nucleus defaults before issue #13 (no long-range rows, one sweep, no inextensible strain
+#: limit, edges hard in compression: the solver before them, bitwise)
+BEFORE = {"stretch": {"long_range_levels": 0, "sweeps": 1, "inextensible_compression": None},
+          "strain_limit": {"inextensible_max_strain": None}}
+#: the settings measured in the stretch / strain_limit parameter descriptions, explicit (the
+#: defaults are IN_CONTACT_SOFT)
+LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3, "inextensible_compression": None},
+              "strain_limit": {"inextensible_max_strain": None}}
 IN_CONTACT = {**LONG_RANGE, "strain_limit": {"inextensible_max_strain": 0.05,
                                              "inextensible_joint_iterations": 10}}
 #: that with the edges near contacts compliant in compression (stretch.inextensible_compression)
@@ -115,16 +121,26 @@ def _strain_run(path, frames, overrides, tmp_path):
     return np.array(worst), np.array(pens), sim, c
 
 
-def test_defaults_unchanged(tmp_path):
-    """Off by default: no long-range rows, one sweep, no inextensible strain limit (the solver
-    before them, bitwise)."""
+def test_defaults_in_contact_for_inextensible_cloth_only(tmp_path):
+    """The defaults are IN_CONTACT_SOFT for inextensible cloth: 5 levels of long-range rows, 3
+    sweeps, the 5 % strain limit, compliant compression near contacts; BEFORE gives the solver
+    before them (no rows, one sweep, no limit, hard compression). Hair (Rod) gets none."""
     c = compile_file(EX / "flag_wind.yaml")
     d = c.schedule.find("StretchConstraint")[0].data
-    assert d.long_range is None and d.sweeps == 1
-    assert all(b.data is None for b in c.schedule.find("StrainLimitConstraint"))
-    worst, _, _, c2 = _strain_run(EX / "flag_wind.yaml", 1, LONG_RANGE, tmp_path)
+    assert d.sweeps == 3 and len(d.long_range) > len(d.idx)
+    assert d.alpha2_nucleus is not None
+    lim = c.schedule.find("StrainLimitConstraint")[0].data
+    np.testing.assert_allclose(lim.limit, 1.05 * np.linalg.norm(
+        c.model.particle_rest[lim.edges[:, 1]] - c.model.particle_rest[lim.edges[:, 0]],
+        axis=1), rtol=1e-12)
+    _, _, _, c2 = _strain_run(EX / "flag_wind.yaml", 1, BEFORE, tmp_path)
     d2 = c2.schedule.find("StretchConstraint")[0].data
-    assert d2.sweeps == 3 and len(d2.long_range) > len(d2.idx)
+    assert d2.long_range is None and d2.sweeps == 1 and d2.alpha2_nucleus is None
+    assert all(b.data is None for b in c2.schedule.find("StrainLimitConstraint"))
+    ch = compile_file(EX / "hair_strands.yaml")
+    for b in ch.schedule.find("StretchConstraint"):
+        assert b.data is None or (b.data.long_range is None and b.data.sweeps == 1)
+    assert all(b.data is None for b in ch.schedule.find("StrainLimitConstraint"))
 
 
 def test_compression_compliance(tmp_path):
@@ -188,9 +204,10 @@ def test_compression_compliant_only_near_contacts(tmp_path):
 
 
 def test_cloth_on_sphere_strain_every_frame(tmp_path):
-    """64 x 64 drop onto a sphere with self-collision: at the defaults the worst edge strain
-    reaches 184 % (frame 12) and stays near 150 %; 26 % with the long-range rows, 7.5 % with
-    the inextensible strain limit as well. Zero penetrations, no vertex inside the ball."""
+    """64 x 64 drop onto a sphere with self-collision: with the settings before issue #13
+    (BEFORE) the worst edge strain reaches 184 % (frame 12) and stays near 150 %; 26 % with the
+    long-range rows, 7.5 % with the inextensible strain limit as well (6.6 % at the defaults,
+    compliant compression near contacts too). Zero penetrations, no vertex inside the ball."""
     worst, pens, sim, c = _strain_run(EX / "cloth_on_sphere.yaml", 14, IN_CONTACT, tmp_path)
     assert worst.max() < 0.09, worst
     assert np.all(pens == 0)
@@ -200,15 +217,15 @@ def test_cloth_on_sphere_strain_every_frame(tmp_path):
 
 
 def test_cloth_pinned_strain_every_frame(tmp_path):
-    """Cloth pinned at two corners swinging (tethers on): 10.2 % worst frame at the defaults,
-    2.0 % with the long-range rows."""
+    """Cloth pinned at two corners swinging (tethers on): 10.2 % worst frame before issue #13
+    (BEFORE), 2.0 % with the long-range rows."""
     worst, _, _, _ = _strain_run(EX / "cloth_pinned.yaml", 24, LONG_RANGE, tmp_path)
     assert worst.max() < 0.03, worst
 
 
 def test_flag_wind_strain_every_frame(tmp_path):
-    """A flag in gusty wind: 17.1 % worst frame (24 frames) at the defaults, 6.1 % with the
-    long-range rows."""
+    """A flag in gusty wind: 17.1 % worst frame (24 frames) before issue #13 (BEFORE), 6.1 % with
+    the long-range rows (5.0 % at the defaults, the strain limit as well)."""
     worst, _, _, _ = _strain_run(EX / "flag_wind.yaml", 24, LONG_RANGE, tmp_path)
     assert worst.max() < 0.08, worst
 
@@ -264,7 +281,8 @@ def test_long_range_projectile_no_crossing(tmp_path):
     point on an edge of the ball): a cloth vertex in front of the ball was remembered as
     inside and pulled in, and the ball vertices' rows against its triangles were dropped
     (measured with that side memory: 78 pairs from frame 4 on)."""
-    rows = {"stretch": {"long_range_levels": 5, "sweeps": 2}}
+    rows = {"stretch": {"long_range_levels": 5, "sweeps": 2, "inextensible_compression": None},
+            "strain_limit": {"inextensible_max_strain": None}}
     assert _projectile_crossings(rows, 12, tmp_path) == [0] * 12
 
 
@@ -302,7 +320,9 @@ def test_long_range_with_redetect_keeps_projectile_out(tmp_path):
     from lokigraph.behaviors.collision.intersect import intersect_meshes
 
     s = yaml.safe_load(PROJECTILE)
-    s["graph_overrides"] = {"stretch": {"long_range_levels": 5, "sweeps": 2},
+    s["graph_overrides"] = {"stretch": {"long_range_levels": 5, "sweeps": 2,
+                                        "inextensible_compression": None},
+                            "strain_limit": {"inextensible_max_strain": None},
                             "collisions": {"redetect": True}}
     f = tmp_path / "projectile.yaml"
     f.write_text(yaml.safe_dump(s))

@@ -73,6 +73,24 @@ def test_cloth_drop_zero_penetrations_64(scene_file, body, substeps):
     assert counts == [0] * 48
 
 
+def _ray_crossings(o, d, V, F):
+    """Number of triangles ``F`` of positions ``V`` [m] the ray ``o + t d`` (t > 0) crosses
+    (Moller-Trumbore, vectorised over the triangles)."""
+    o, d = np.asarray(o, float), np.asarray(d, float)
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    e1, e2 = b - a, c - a
+    h = np.cross(d, e2)
+    det = (e1 * h).sum(1)
+    ok = np.abs(det) > 1e-14
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    s = o - a
+    u = (s * h).sum(1) * inv
+    qv = np.cross(s, e1)
+    v = (qv @ d) * inv
+    t = (qv * e2).sum(1) * inv
+    return int((ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0)).sum())
+
+
 def test_fast_sphere_does_not_tunnel(scene_file):
     """A small ball (shape-matched, 0.2 kg) thrown at 20 m/s into a cloth pinned at its corners,
     at one substep per 24 fps frame (it moves 0.83 m, 8 radii, per substep): no cloth-ball
@@ -113,8 +131,15 @@ def test_fast_sphere_does_not_tunnel(scene_file):
                                    touching=False)
         assert not (rows[:, 0] != rows[:, 2]).any()  # no cloth-ball intersection
         centre = q[ball.vertex_slice].mean(0)
-        # the cloth is always in front of the ball: its centre vertex lies beyond the ball
-        assert q[cl.vertex_slice][312, 2] < centre[2] - 0.09
+        # the cloth is always in front of the ball: its centre vertex lies beyond the ball's
+        # centroid, and a ray from the centroid along -z crosses the cloth an odd number of times
+        # (the ball's centre is behind the sheet). Not by the ball's rest radius: the
+        # shape-matched ball deforms at one substep (smallest vertex distance to its centroid
+        # measured 52 mm before the in-contact defaults of inextensible cloth, 10 mm with them:
+        # the 5 %-limited cloth gives less, the ball flattens; largest 397 mm before, 253 mm now)
+        assert q[cl.vertex_slice][312, 2] < centre[2]
+        assert _ray_crossings(centre, (0.0, 0.0, -1.0), q[cl.vertex_slice],
+                              cl.geometry.triangles) % 2 == 1
     # the inextensible cloth, pinned at its corners at rest distance, is taut: it stops the ball
     assert np.linalg.norm(sim.state.particle_qd[ball.vertex_slice].mean(0)) < 20.0
     assert centre[2] > 0.0
@@ -215,7 +240,10 @@ def test_exclude_pairs_rule(scene_file):
 
 
 def test_thickness_map_doubles_gap(scene_file):
-    """A cloth resting on a box: where the box's outer-thickness map is 2 the gap doubles."""
+    """A cloth resting on a box: where the box's outer-thickness map is 2 the gap doubles.
+    Pinned to the cloth settings before issue #13: at the defaults the inextensible cloth
+    (friction 1) wrinkles on the box, so the median gap measures its flatness too (right half,
+    frame 37: median 6.04 mm, 5.25 before; smallest 5.01 and 5.00 mm: the gap itself)."""
     box = """        geometry: {generator: tet_box, params: {size: [0.6, 0.2, 0.6], resolution: [6, 1, 6]}}
         channels: {thick: {vertices: [%s], value: 2.0, default: 1.0}}
         components: {Kinematic: {}, Collider: {thickness: 0.005, thickness_outer: thick}}"""
@@ -223,6 +251,10 @@ def test_thickness_map_doubles_gap(scene_file):
     idx = [(i * 2 + 1) * 7 + k for i in range(0, 3) for k in range(7)]
     p = _scene(scene_file, box % ", ".join(map(str, idx)), 16, 2, 36, self_=False,
                cloth_collider="{thickness: 0.0, friction: 1.0}", center_y=0.2)
+    p.write_text(p.read_text().replace("lokigraph: 1\n", "lokigraph: 1\ngraph_overrides: "
+                                       "{stretch: {long_range_levels: 0, sweeps: 1, "
+                                       "inextensible_compression: null}, strain_limit: "
+                                       "{inextensible_max_strain: null}}\n", 1))
     c = compile_file(p)
     sim = Simulation(c)
     for _ in range(36):

@@ -42,8 +42,15 @@ def pinch_run(tmp_path, text, name, frames):
     return {k: np.array(v) if isinstance(v, list) else v for k, v in out.items()}
 
 
-def _pinch(tmp_path, mechanisms=True, substeps=4, frames=60):
+#: the cloth settings before the in-contact defaults of inextensible cloth (issue #13)
+BEFORE = ("graph_overrides: {stretch: {long_range_levels: 0, sweeps: 1, "
+          "inextensible_compression: null}, strain_limit: {inextensible_max_strain: null}}\n")
+
+
+def _pinch(tmp_path, mechanisms=True, substeps=4, frames=60, before=False):
     text = (EXAMPLES / "pinch.yaml").read_text().replace("substeps: 4", f"substeps: {substeps}")
+    if before:
+        text = text.replace("lokigraph: 1\n", "lokigraph: 1\n" + BEFORE, 1)
     if not mechanisms:
         text = text.replace("        stiffness: soft", "        # stiffness: soft")
         text = text.replace("methods: [vertex_face, edge_edge]}",
@@ -78,9 +85,13 @@ def test_compliant_recession_independent_of_substeps(tmp_path):
     """The painted stiffness has 1/h^2 folded in: the recession of the compliant lid through the
     pinch is the same at 2 and 8 substeps: frame by frame within 1 mm outside the closure frame
     (measured <= 0.84 mm), at the closure frame (zero gap) within one cloth thickness, 2 mm
-    (measured 10.9 vs 12.4 mm), and on average over frames 20-28 within 15 %."""
-    a = _pinch(tmp_path, True, 2, frames=30)["recede"]
-    b = _pinch(tmp_path, True, 8, frames=30)["recede"]
+    (measured 10.9 vs 12.4 mm), and on average over frames 20-28 within 15 %. Measured with the
+    cloth settings before the in-contact defaults (BEFORE), which this test pins: the lid's
+    compliance is its subject, and the defaults' cloth (long-range rows, 5 % strain limit with
+    10 joint passes, compliant compression near contacts) resists the pinch differently at 2 and
+    8 substeps (frame by frame up to 1.40 mm apart after the closure frame, measured)."""
+    a = _pinch(tmp_path, True, 2, frames=30, before=True)["recede"]
+    b = _pinch(tmp_path, True, 8, frames=30, before=True)["recede"]
     window = [i for i in range(19, 28) if i != 23]
     assert np.abs(a[window] - b[window]).max() < 1e-3
     assert abs(a[23] - b[23]) < 2e-3

@@ -58,3 +58,41 @@ def test_stress_cli_exit_code(tmp_path):
     r = subprocess.run([sys.executable, "-m", "lokigraph", "stress", "--only", "no such case"],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "no stress case matches" in r.stderr
+
+
+def test_tangle_counts_of_the_interpenetrated_case(tmp_path):
+    """The two tangle measures of the case that starts interpenetrated (``no_worse``), after
+    its first frame: the cloth's own intersecting pairs (two sheets cut through each other)
+    and the cloth vertices inside the closed kinematic ball, by winding number: the same
+    vertices as |x| < r for the sphere of radius 0.3 at the origin (vertices within 1 % of r
+    left out: the mesh is faceted), and more of them when the cloth moves into the ball (the
+    measure can fail)."""
+    import numpy as np
+
+    from lokigraph.api import compile_file
+    from lokigraph.bench.stress import _crossed, tangle_counts
+    from lokigraph.run import Simulation
+
+    case = [c for c in cases(True) if "interpenetrated" in c.name][0]
+    assert case.no_worse
+    _crossed(tmp_path / "crossed.obj")
+    (tmp_path / "scene.yaml").write_text(case.scene)
+    c = compile_file(tmp_path / "scene.yaml")
+    sim = Simulation(c)
+    sim.step_frame()  # the sheets start crossed along a line of shared positions (touching)
+    q = sim.state.particle_q.copy()
+    pairs, inside = tangle_counts(c, q)
+    assert pairs > 0  # and cut through each other after the first frame
+    cl = c.scene.element("cloth").vertex_slice
+    r = np.linalg.norm(q[cl], axis=1)
+    sure = np.abs(r - 0.3) > 0.003
+    q_in = np.zeros(len(q), dtype=bool)
+    q_in[cl] = r < 0.3
+    assert inside >= (q_in[cl] & sure).sum() and inside <= (r < 0.3).sum() + (~sure).sum()
+    assert (r < 0.297).sum() > 0
+    q2 = q.copy()
+    q2[cl, 0] *= 0.5  # the sheets squeezed toward the ball's axis: more of them inside
+    assert tangle_counts(c, q2)[1] > inside
+    q3 = q.copy()
+    q3[cl, 1] += 10.0  # far above the ball: nothing inside, the sheets still cross
+    assert tangle_counts(c, q3) == (pairs, 0)

@@ -1,21 +1,24 @@
 """Inextensible cloth in motion and contact (issues #12, #13): worst edge strain per frame and
-cost at the defaults (the solver before the long-range rows, bitwise) and with the opt-in
-settings, every setting stepped frame by frame in turn in one process (machine load hits all
-alike):
+cost at the defaults and at the settings around them, every setting stepped frame by frame in
+turn in one process (machine load hits all alike):
 
-* ``long_range``: ``stretch: {long_range_levels: 5, sweeps: 3}``;
+* ``before``: the defaults before issue #13, ``stretch: {long_range_levels: 0, sweeps: 1,
+  inextensible_compression: null}``, ``strain_limit: {inextensible_max_strain: null}`` (the
+  solver before the long-range rows, bitwise);
+* ``long_range``: ``stretch: {long_range_levels: 5, sweeps: 3}`` alone (no strain limit, edges
+  hard in compression);
 * ``in_contact_hard``: that plus ``strain_limit: {inextensible_max_strain: 0.05,
   inextensible_joint_iterations: 10}`` (edges hard in compression);
-* ``in_contact``: that plus ``stretch: {inextensible_compression: 10}`` (edges near contacts
-  compliant in compression);
-* ``in_contact+redetect``: that plus ``collisions: {redetect: true}``;
-* ``tight``: ``in_contact`` with ``stretch: {joint_long_range: true}``, ``strain_limit:
+* ``defaults``: that plus ``stretch: {inextensible_compression: 10}`` (edges near contacts
+  compliant in compression; the opt-in 'in_contact' before it became the defaults);
+* ``defaults+redetect``: that plus ``collisions: {redetect: true}``;
+* ``tight``: the defaults with ``stretch: {joint_long_range: true}``, ``strain_limit:
   {inextensible_max_strain: 0.02, inextensible_joint_iterations: 40}``.
 
 Run::
 
     .venv/bin/python graphs/bench/cloth_strain.py [--frames 24] [--scenes cloth_on_sphere ...]
-    .venv/bin/python graphs/bench/cloth_strain.py --only defaults in_contact \
+    .venv/bin/python graphs/bench/cloth_strain.py --only before defaults \
         --set stretch.sweeps=2 \
         --set strain_limit.inextensible_joint_iterations=20 ...   # some settings, extra ones
     /tmp/venv-peer/bin/python graphs/bench/cloth_strain.py --peer 64 [128] [--frames 23]
@@ -44,18 +47,22 @@ ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+#: the Nucleus defaults before issue #13 (the solver before the long-range rows, bitwise)
+BEFORE = {"stretch": {"long_range_levels": 0, "sweeps": 1, "inextensible_compression": None},
+          "strain_limit": {"inextensible_max_strain": None}}
+LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3, "inextensible_compression": None},
+              "strain_limit": {"inextensible_max_strain": None}}
+IN_CONTACT_HARD = {"stretch": {"inextensible_compression": None}}
+#: the defaults now (the former opt-in 'in_contact'): long-range rows 5 levels, 3 sweeps, the
+#: 5 % inextensible strain limit with 10 joint passes, edges near contacts compliant in
+#: compression at 10 N/m
 DEFAULTS = {}
-LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3}}
-IN_CONTACT_HARD = {**LONG_RANGE, "strain_limit": {"inextensible_max_strain": 0.05,
-                                                  "inextensible_joint_iterations": 10}}
-IN_CONTACT = {**IN_CONTACT_HARD,
-              "stretch": {**LONG_RANGE["stretch"], "inextensible_compression": 10.0}}
-REDETECT = {**IN_CONTACT, "collisions": {"redetect": True}}
-TIGHT = {"stretch": {**IN_CONTACT["stretch"], "joint_long_range": True},
+REDETECT = {"collisions": {"redetect": True}}
+TIGHT = {"stretch": {"joint_long_range": True},
          "strain_limit": {"inextensible_max_strain": 0.02, "inextensible_joint_iterations": 40}}
-SETTINGS = [("defaults", DEFAULTS), ("long_range", LONG_RANGE),
-            ("in_contact_hard", IN_CONTACT_HARD), ("in_contact", IN_CONTACT),
-            ("in_contact+redetect", REDETECT), ("tight", TIGHT)]
+SETTINGS = [("before", BEFORE), ("long_range", LONG_RANGE),
+            ("in_contact_hard", IN_CONTACT_HARD), ("defaults", DEFAULTS),
+            ("defaults+redetect", REDETECT), ("tight", TIGHT)]
 SCENES = ("cloth_on_sphere", "skirt_walk", "sleeve_elbow", "cloth_pinned", "flag_wind")
 
 
