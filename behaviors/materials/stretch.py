@@ -437,7 +437,9 @@ class StretchConstraint(ConstraintBehavior):
                 acn = ac
                 kc = self.params.inextensible_compression
                 if c.youngs_modulus is None and kc is not None and c.compression_ratio > 0:
-                    acn = L * L / (kc * c.compression_ratio * np.maximum(Ae, 1e-300))
+                    # an edge of zero-area triangles gets infinite compliance (no stiffness)
+                    with np.errstate(over="ignore"):
+                        acn = L * L / (kc * c.compression_ratio * np.maximum(Ae, 1e-300))
                 beta = np.full(len(edges), c.stretch_damping)
                 parts.append((edges + off, L * c.rest_length_scale, a, ac, beta, acn))
             elif e.has(Rod) and len(g.edges) and not solved_directly(e):
