@@ -45,6 +45,7 @@ __all__ = [
     "triangle_topology",
     "triangle_edges",
     "boundary_edges",
+    "is_closed",
     "bend_quads",
     "triangle_corner_triplets",
     "strand_edges",
@@ -194,6 +195,16 @@ def _triangle_topology(tris: np.ndarray) -> TriangleTopology:
 def triangle_edges(tris) -> np.ndarray:
     """Unique sorted edges of a triangle mesh, shape (E, 2)."""
     return triangle_topology(tris).edges
+
+
+def is_closed(triangles) -> bool:
+    """Every undirected edge of the triangle mesh is shared by exactly two triangles."""
+    t = np.asarray(triangles, np.int64)
+    if len(t) == 0:
+        return False
+    e = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(e, axis=0, return_counts=True)
+    return bool((counts == 2).all())
 
 
 def boundary_edges(tris, oriented: bool = False) -> np.ndarray:

@@ -417,6 +417,7 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
           np.zeros(0, np.bool_), g.strength)
     ee = (np.zeros((0, 4), np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0), g.strength)
     tol_count = 0
+    split = spacetime and SPLIT_BUFFERS  # the space-time detections' own pair buffers
     if g.do_vf and len(g.tris):
         nv, nt = len(g.verts), len(g.tris)
         lo_v, hi_v = bp.primitive_boxes(x, g.verts, x1, infl,
@@ -436,7 +437,6 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
                                     _scratch(g, "sv", (2 * nv - 1, 14)))
             st = bp.spacetime_boxes(bt, x, g.tris, x1, infl, ~g.kinematic_el[g.tri_elem],
                                     g.tri_elem, _scratch(g, "st", (2 * nt - 1, 14)))
-        split = spacetime and SPLIT_BUFFERS
         cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=g.buf_vf_st if split else g.buf_vf,
                               st_a=sv, st_b=st)
         n = len(cand)
@@ -461,7 +461,7 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
                                 g.edge_elem, _scratch(g, "se", (2 * ne - 1, 14))) \
             if spacetime else None
         cand = bp.query_self(be, g.edges, st=se,
-                             out=g.buf_ee_st if spacetime and SPLIT_BUFFERS else g.buf_ee)
+                             out=g.buf_ee_st if split else g.buf_ee)
         n = len(cand)
         if n:
             rows, nrm, tgt, mu, _ = _row_buffers(g, "ee", n)

@@ -33,6 +33,8 @@ import math
 import numpy as np
 from numba import njit
 
+from ..topology import is_closed
+
 #: shifts of the sample columns [fraction of the spacing]: irrational-looking, so that columns
 #: of a regular lattice never pass exactly through the edges of a mesh built on a lattice too
 _JITTER = (1.2345671e-6, 2.7182818e-6)
@@ -151,16 +153,6 @@ def affine_velocity(x, v):
         return c, vc, np.zeros((3, 3))
     At, *_ = np.linalg.lstsq(X, V, rcond=1e-10)
     return c, vc, At.T
-
-
-def is_closed(triangles) -> bool:
-    """Every undirected edge of the triangle mesh is shared by exactly two triangles."""
-    t = np.asarray(triangles, np.int64)
-    if len(t) == 0:
-        return False
-    e = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(e, axis=0, return_counts=True)
-    return bool((counts == 2).all())
 
 
 __all__ = ["MeshRasterizer", "affine_velocity", "is_closed"]

@@ -40,6 +40,7 @@ class Packed:
     color_ptr: np.ndarray
     sequential: bool = False
     beta: np.ndarray | None = None  # stretch damping
+    perm: np.ndarray | None = None  # row i is row perm[i] of the rows given to ``build``
 
     @classmethod
     def build(cls, idx, rest, alpha, alpha2=None, beta=None, sequential=None):
@@ -51,7 +52,7 @@ class Packed:
         return cls(np.ascontiguousarray(idx[perm]), np.ascontiguousarray(rest[perm]),
                    np.ascontiguousarray(alpha[perm]), np.ascontiguousarray(a2[perm]),
                    np.zeros(len(idx)), ptr, sequential,
-                   None if beta is None else np.ascontiguousarray(beta[perm]))
+                   None if beta is None else np.ascontiguousarray(beta[perm]), perm)
 
     def __len__(self):
         return len(self.idx)

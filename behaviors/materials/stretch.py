@@ -474,12 +474,7 @@ class StretchConstraint(ConstraintBehavior):
         d = _StretchData.build(idx, L, a, ac, beta=beta if beta.any() else None)
         d.sweeps = int(self.params.sweeps) if shell else 1
         if not np.array_equal(acn, ac):
-            # the rows in d's (coloured) order: edges are unique, so sorting matches them
-            src = np.lexsort((idx[:, 1], idx[:, 0]))
-            dst = np.lexsort((d.idx[:, 1], d.idx[:, 0]))
-            a2 = np.empty_like(acn)
-            a2[dst] = acn[src]
-            d.alpha2_nucleus = a2
+            d.alpha2_nucleus = np.ascontiguousarray(acn[d.perm])  # in d's (coloured) order
             d.alpha2_substep = d.alpha2.copy()
             d.near = np.zeros(ctx.model.particle_count, bool)
         if lr_parts:

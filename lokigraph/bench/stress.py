@@ -24,6 +24,7 @@ from .sweep import worst_strain
 from ..errors import SimulationError
 from ..run import Simulation
 from ..behaviors.collision.intersect import intersect_meshes
+from ..behaviors.topology import is_closed
 
 CLOTH = """
   - name: cloth
@@ -218,15 +219,6 @@ def _winding(P, V, F, out):
         out[i] = w / (4.0 * np.pi)
 
 
-def _closed(F: np.ndarray) -> bool:
-    """Every edge of the triangles ``F`` shared by exactly two of them (a closed surface)."""
-    if len(F) == 0:
-        return False
-    e = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    _, n = np.unique(e, axis=0, return_counts=True)
-    return bool((n == 2).all())
-
-
 def tangle_counts(compiled, q: np.ndarray) -> tuple[int, int]:
     """The two measures of a tangle for the cases that start interpenetrated (``no_worse``).
 
@@ -259,7 +251,7 @@ def tangle_counts(compiled, q: np.ndarray) -> tuple[int, int]:
             continue
         sl = e.vertex_slice
         if kin[sl].all():
-            if _closed(np.asarray(tris)):
+            if is_closed(tris):
                 closed.append((np.ascontiguousarray(q[sl], dtype=np.float64),
                                np.ascontiguousarray(tris, dtype=np.int64)))
         elif not kin[sl].any():
