@@ -95,6 +95,11 @@ _CULL_TOL = 1e-9  # [m] slack over rounding in the cull bound
 #: the 60 of the slow test_sleeve_elbow_with_mechanisms (the rows it drops never activate in
 #: the final rounds or the CCD there; at 128 x 128 they differ)
 SPACETIME = True
+#: in the detections over a known motion, pairs of two *different* elements (cloth on a
+#: moving collider, two cloths) get the space-time test too, not the self pairs alone: exact for
+#: the same reason (both move linearly along x -> p there). False: those pairs by their swept
+#: boxes (before).
+SPACETIME_CROSS = True
 #: space-time boxes also in the detection over the *predicted* motion x -> x1 (the rows the
 #: iterations project). Off: that test is exact for the predicted motion only, and the iterate
 #: leaves it by more than the inflation (a vertex stopped by a contact while its neighbour keeps
@@ -410,6 +415,18 @@ def _scratch(g, key, shape):
     return a
 
 
+def _st_group(g, elem):
+    """The space-time boxes' group labels of primitives of elements ``elem``: the elements
+    themselves (pairs of two elements by their swept boxes), or one label for all
+    (``SPACETIME_CROSS``: every pair tested in space-time)."""
+    if not SPACETIME_CROSS:
+        return elem
+    z = g.bufs.get(("st_group", len(elem)))
+    if z is None:
+        z = g.bufs[("st_group", len(elem))] = np.zeros(len(elem), np.int64)
+    return z
+
+
 def _detect_group(g, x, x1, infl, v, h, spacetime=False):
     """Candidates of group ``g`` for the motion x -> x1 (boxes inflated by ``infl`` [m] per
     vertex), filtered into rows."""
@@ -433,10 +450,10 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
             # kinematic objects never collide with each other: their subtrees are not paired
             # and only the self pairs of an element are tested in space-time
             ev = g.vert_elem[g.verts]
-            sv = bp.spacetime_boxes(bv, x, g.verts, x1, infl, ~g.kinematic_el[ev], ev,
-                                    _scratch(g, "sv", (2 * nv - 1, 14)))
+            sv = bp.spacetime_boxes(bv, x, g.verts, x1, infl, ~g.kinematic_el[ev],
+                                    _st_group(g, ev), _scratch(g, "sv", (2 * nv - 1, 14)))
             st = bp.spacetime_boxes(bt, x, g.tris, x1, infl, ~g.kinematic_el[g.tri_elem],
-                                    g.tri_elem, _scratch(g, "st", (2 * nt - 1, 14)))
+                                    _st_group(g, g.tri_elem), _scratch(g, "st", (2 * nt - 1, 14)))
         cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=g.buf_vf_st if split else g.buf_vf,
                               st_a=sv, st_b=st)
         n = len(cand)
@@ -458,7 +475,7 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
                                         _scratch(g, "hi_e", (ne, 3)))
         be = bp.build_bvh(lo_e, hi_e)
         se = bp.spacetime_boxes(be, x, g.edges, x1, infl, ~g.kinematic_el[g.edge_elem],
-                                g.edge_elem, _scratch(g, "se", (2 * ne - 1, 14))) \
+                                _st_group(g, g.edge_elem), _scratch(g, "se", (2 * ne - 1, 14))) \
             if spacetime else None
         cand = bp.query_self(be, g.edges, st=se,
                              out=g.buf_ee_st if split else g.buf_ee)
