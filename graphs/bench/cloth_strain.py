@@ -30,6 +30,23 @@ Style3D at its settings when Newton is importable, with the shared intersection 
 Per setting: worst edge strain over the frames (max over edges of ``|e| / L0 - 1``), the frame
 where it happens, the last frame's strain, the penetration count (max over frames), CPU and wall
 ms per frame (medians over frames 2..N).
+
+Where the strain comes from::
+
+    .venv/bin/python graphs/bench/cloth_strain.py --stages cloth_on_sphere [--set ...]
+    .venv/bin/python graphs/bench/cloth_strain.py --girth [--frames 48]
+
+``--stages``: per frame, the worst edge strain of the substeps after the interleaved
+iterations, after the final collision rounds (joint contact + strain-limit passes), after the
+CCD safe step and at the frame's end, with the contacts still active after the final rounds.
+``--girth``: sleeve_elbow, per frame, the circumferential rings over the elbow (8, 9, 10) and at
+the wrist (16): girth strain, worst ring edge strain, and the strain the arm forces on the ring
+(the perimeter of the convex hull of the arm's section -- upper arm, forearm, elbow cap at
+their current positions -- by a plane through the ring's centre plus 2 pi times the collision
+distance, the smallest over planes tilted up to 40 degrees from the ring's own plane, against
+the ring's rest girth; in the ring's plane the part of the section inside the ring, in a tilted
+one the part within 1.2 ring radii of the centre), and the sleeve
+vertices inside the arm (winding number).
 """
 
 from __future__ import annotations
@@ -76,7 +93,7 @@ def _variant(path: Path, overrides: dict, tmp: Path) -> Path:
     s["output"] = {"dir": str(tmp / "out")}
     for f in path.parent.iterdir():
         link = tmp / f.name
-        if f.suffix != ".yaml" and f.is_file() and not link.exists():
+        if f.suffix != ".yaml" and f.is_file() and not link.is_symlink():
             link.symlink_to(f)
     out = tmp / f"{path.stem}_{len(list(tmp.glob('*.yaml')))}.yaml"
     out.write_text(yaml.safe_dump(s))
@@ -96,7 +113,7 @@ class _Run:
 
     def step(self):
         t, c = time.perf_counter(), time.process_time()
-        st = self.sim.step_frame()
+        st = self.last = self.sim.step_frame()
         self.wall.append(time.perf_counter() - t)
         self.cpu.append(time.process_time() - c)
         q, d = self.sim.state.particle_q, self.d
@@ -126,7 +143,8 @@ def scenes_table(names, frames, extras, only=None):
     print("|---|---|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
-            path = ROOT / "graphs" / "examples" / f"{name}.yaml"
+            path = _scene_path(name)
+            name = path.stem
             settings = [s for s in SETTINGS if not only or s[0] in only]
             for extra in extras:
                 settings.append((" ".join(f"{n}.{k}={v}" for n, p in extra.items()
@@ -168,19 +186,186 @@ def peer(sizes, frames, only=None):
     print(pc.table(rows))
 
 
+def _scene_path(name):
+    return (Path(name).resolve() if name.endswith(".yaml")
+            else ROOT / "graphs" / "examples" / f"{name}.yaml")
+
+
+def stages(name, frames, extras):
+    """Worst edge strain after each stage of the substeps, per frame (see the module doc)."""
+    from lokigraph.behaviors.collision import contacts as C
+
+    cls = C.CollisionConstraint
+    fin0, aft0 = cls.finalize, cls.after_finalize
+    rec = {}
+
+    def strain(p):
+        d = run.d
+        return float((np.linalg.norm(p[d.idx[:, 1]] - p[d.idx[:, 0]], axis=1) / d.rest).max()
+                     - 1.0)
+
+    def fin(self, ctx, d, p):
+        rec.setdefault("iter", []).append(strain(p))
+        fin0(self, ctx, d, p)
+        rec.setdefault("final", []).append(strain(p))
+
+    def aft(self, ctx, d, p):
+        aft0(self, ctx, d, p)
+        rec.setdefault("ccd", []).append(strain(p))
+
+    ov = extras[0] if extras else {}
+    cls.finalize, cls.after_finalize = fin, aft
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            run = _Run("", _variant(_scene_path(name), ov, Path(tmp)))
+            print("| frame | after iterations % | after final rounds % | after CCD % | frame end % "
+                  "| active contacts after the final rounds (max over substeps) |")
+            print("|---|---|---|---|---|---|")
+            for k in range(frames):
+                rec.clear()
+                run.step()
+                m = {key: 100 * max(v) if v else float("nan") for key, v in rec.items()}
+                print(f"| {k + 1} | {m.get('iter', np.nan):.2f} | {m.get('final', np.nan):.2f} | "
+                      f"{m.get('ccd', np.nan):.2f} | {100 * run.worst[-1]:.2f} | "
+                      f"{int(run.last.get('max_final_active', 0))} |",
+                      flush=True)
+    finally:
+        cls.finalize, cls.after_finalize = fin0, aft0
+
+
+def _hull_perimeter(P):
+    from scipy.spatial import ConvexHull
+
+    if len(P) < 3:
+        return 0.0
+    H = P[ConvexHull(P).vertices]
+    return float(np.linalg.norm(np.roll(H, -1, 0) - H, axis=1).sum())
+
+
+def _section(meshes, cen, nrm):
+    """Points [m] where the plane (cen, nrm) cuts the triangle meshes, in plane coordinates."""
+    u = np.cross(nrm, [0.0, 0.0, 1.0])
+    if np.linalg.norm(u) < 1e-6:
+        u = np.cross(nrm, [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(nrm, u)
+    pts = [np.zeros((0, 3))]
+    for V, F in meshes:
+        s = (V - cen) @ nrm
+        for a, b in ((0, 1), (1, 2), (2, 0)):
+            ia, ib = F[:, a], F[:, b]
+            x = s[ia] * s[ib] < 0
+            t = s[ia][x] / (s[ia][x] - s[ib][x])
+            pts.append(V[ia[x]] + t[:, None] * (V[ib[x]] - V[ia[x]]))
+    P = np.concatenate(pts) - cen
+    return np.stack([P @ u, P @ v], 1), u, v
+
+
+def _inside_polygon(P, poly):
+    """Crossing-number test of the points P (k, 2) against the closed polygon poly (n, 2)."""
+    a, b = poly, np.roll(poly, -1, 0)
+    y = P[:, 1:2]
+    cross = (a[:, 1] > y) != (b[:, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xi = a[:, 0] + (y - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+    return (np.count_nonzero(cross & (P[:, :1] < xi), axis=1) % 2) == 1
+
+
+#: sleeve_elbow: tube segments around the sleeve, collision distance sleeve-arm [m] (thicknesses)
+SLEEVE_AROUND, SLEEVE_GAP = 24, 0.002 + 0.002
+
+
+def ring_girth(q, X, sleeve, arm, ring):
+    """Ring ``ring`` of the sleeve_elbow sleeve at positions q: ``(girth strain, worst ring
+    edge strain, forced strain)`` [-], the forced strain being the smallest arm girth around the
+    ring (see the module doc) against the ring's rest girth. X: rest positions [m]; sleeve: its
+    element; arm: (positions, triangles) of the arm's pieces."""
+    idx = sleeve.vertex_offset + ring * SLEEVE_AROUND + np.arange(SLEEVE_AROUND)
+    R0, R = X[idx], q[idx]
+    rest = np.linalg.norm(np.roll(R0, -1, 0) - R0, axis=1)
+    cur = np.linalg.norm(np.roll(R, -1, 0) - R, axis=1)
+    cen = R.mean(0)
+    _, _, vt = np.linalg.svd(R - cen)
+    rmax = np.linalg.norm(R - cen, axis=1).max()
+    best = np.inf
+    for tilt in np.radians(np.arange(0, 41, 5)):
+        for az in np.radians(np.arange(0, 360, 30) if tilt > 0 else [0.0]):
+            n = np.cos(tilt) * vt[2] + np.sin(tilt) * (vt[0] * np.cos(az) + vt[1] * np.sin(az))
+            P, u, v = _section(arm, cen, n)
+            if tilt == 0:  # the ring's plane: the part inside the ring
+                P = P[_inside_polygon(P, np.stack([(R - cen) @ u, (R - cen) @ v], 1))]
+            else:  # a tilted plane: the part near the ring
+                P = P[np.linalg.norm(P, axis=1) < 1.2 * rmax]
+            best = min(best, _hull_perimeter(P) + 2 * np.pi * SLEEVE_GAP)
+    return cur.sum() / rest.sum() - 1, (cur / rest - 1).max(), best / rest.sum() - 1
+
+
+def inside_arm(q, sleeve, arm):
+    """Sleeve vertices inside a piece of the arm (|winding number| > 1/2)."""
+    from lokigraph.bench.stress import _winding
+
+    P = np.ascontiguousarray(q[sleeve.vertex_slice])
+    w, ins = np.empty(len(P)), np.zeros(len(P), bool)
+    for V, F in arm:
+        _winding(P, np.ascontiguousarray(V), np.ascontiguousarray(F, dtype=np.int64), w)
+        ins |= np.abs(w) > 0.5
+    return int(ins.sum())
+
+
+def sleeve_parts(sim):
+    """(sleeve element, arm pieces as (positions, triangles)) of a sleeve_elbow simulation."""
+    els = {e.name: e for e in sim.compiled.scene.elements}
+    q = sim.state.particle_q
+    return els["sleeve"], [(q[els[n].vertex_slice], els[n].geometry.triangles)
+                           for n in ("upper_arm", "forearm", "elbow")]
+
+
+def girth(frames, extras, rings=(8, 9, 10, 16)):
+    """sleeve_elbow: ring girths against the arm's girth, per frame (see the module doc)."""
+    ov = extras[0] if extras else {}
+    with tempfile.TemporaryDirectory() as tmp:
+        run = _Run("", _variant(_scene_path("sleeve_elbow"), ov, Path(tmp)))
+        X = run.sim.state.particle_q.copy()
+        print("| frame | worst edge % | " + " | ".join(
+            f"ring {r}: girth % / worst ring edge % / forced %" for r in rings)
+            + " | sleeve vertices inside the arm |")
+        print("|---|---|" + "---|" * len(rings) + "---|")
+        for k in range(frames):
+            run.step()
+            q = run.sim.state.particle_q
+            sleeve, arm = sleeve_parts(run.sim)
+            cells = []
+            for r in rings:
+                g, e, f = ring_girth(q, X, sleeve, arm, r)
+                cells.append(f"{100 * g:+.1f} / {100 * e:.1f} / {100 * f:+.1f}")
+            print(f"| {k + 1} | {100 * run.worst[-1]:.2f} | " + " | ".join(cells)
+                  + f" | {inside_arm(q, sleeve, arm)} |", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=24)
-    ap.add_argument("--scenes", nargs="+", default=list(SCENES))
+    ap.add_argument("--scenes", nargs="+", default=list(SCENES),
+                    help="example names (graphs/examples/NAME.yaml) or .yaml paths, e.g. "
+                    "graphs/bench/cloth_sphere_128.yaml")
     ap.add_argument("--set", nargs="+", action="append", default=[],
                     help="an extra setting NODE.PARAM=VALUE ... (repeat --set for more)")
     ap.add_argument("--peer", type=int, nargs="*", help="peer collision scene sizes")
     ap.add_argument("--only", nargs="*", help="only these of the built-in settings")
+    ap.add_argument("--stages", metavar="SCENE", help="worst strain after each stage of the "
+                    "substeps, per frame, at the defaults (or the first --set)")
+    ap.add_argument("--girth", action="store_true", help="sleeve_elbow: ring girths against "
+                    "the girth the arm forces, per frame")
     args = ap.parse_args(argv)
-    if args.peer:
+    extras = [_parse_set(x) for x in args.set]
+    if args.stages:
+        stages(args.stages, args.frames, extras)
+    elif args.girth:
+        girth(args.frames, extras)
+    elif args.peer:
         peer(args.peer, args.frames, args.only)
     else:
-        scenes_table(args.scenes, args.frames, [_parse_set(x) for x in args.set], args.only)
+        scenes_table(args.scenes, args.frames, extras, args.only)
 
 
 if __name__ == "__main__":
