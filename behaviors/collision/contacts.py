@@ -138,6 +138,27 @@ SPLIT_BUFFERS = True
 #: ``collision_scaling.py --ab --sizes 64 --frames 16 --from-frame 6 --ab-flag REUSE_BUFFERS``
 #: (1 thread): median per-frame CPU ratio 0.960 (0.972 with the rows alone)
 REUSE_BUFFERS = True
+#: vertex-face and edge-edge candidates of every group (self, dynamic and kinematic pairs)
+#: from the sorted column grid (``broadphase.column_query_pairs`` / ``column_query_self``: the
+#: same candidate set as the BVH queries, no trees built; space-time rows per primitive,
+#: ``broadphase.spacetime_prim_boxes``) instead of the trees. The candidates come in another
+#: order (column by column), so the contacts are projected in another Gauss-Seidel order and
+#: the positions differ from the trees' (the filtered rows are the same set:
+#: ``tests/test_broadphase_columns.py``). Measured with ``collision_scaling.py --ab --ab-mode
+#: known --ab-flag COLUMN_GRID`` (1 thread, interleaved with False, machine load 8-12): median
+#: per-frame CPU ratio 0.760 and 0.742 at 64 x 64 (frames 6-16, two runs; 470 -> 372 ms) and
+#: 0.832 and 0.938 at 128 x 128 (frames 6-14, two runs), no intersecting pairs either way,
+#: largest edge strain 6.6 -> 6.6 % and 15.9 -> 16.4 %. With it on, ``lokigraph stress
+#: --quick``, the full-size projectile (0 penetrations) and interpenetrated cases pass and
+#: cloth_strain's defaults give cloth_on_sphere 6.59 % and sleeve_elbow 21.23 % (6.64 and 23.91
+#: with the trees, no intersection with the cloth either way), but four tests calibrated on the
+#: trees' contact order fail: the slow test_hard_limit_holds_a_32x32_drop (implicit drop
+#: without the hard limit 3.47 % strain, must exceed 3.5 %; 3.85 % with the trees),
+#: test_sleeve_elbow_joint_long_range (14.4 %, bound 13 %), test_cut_step_is_not_convergence
+#: (one false stop, needs two) and test_compliant_recession_independent_of_substeps (2.5 mm,
+#: bound 1 mm). Off by default for that reason.
+#: False (the default): the trees, positions bitwise those before the grid
+COLUMN_GRID = False
 
 
 @dataclass
@@ -443,19 +464,31 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
         lo_t, hi_t = bp.primitive_boxes(x, g.tris, x1, infl,
                                         _scratch(g, "lo_t", (nt, 3)),
                                         _scratch(g, "hi_t", (nt, 3)))
-        bv = bp.build_bvh(lo_v, hi_v)
-        bt = bp.build_bvh(lo_t, hi_t)
         sv = st = None
-        if spacetime:
-            # kinematic objects never collide with each other: their subtrees are not paired
-            # and only the self pairs of an element are tested in space-time
-            ev = g.vert_elem[g.verts]
-            sv = bp.spacetime_boxes(bv, x, g.verts, x1, infl, ~g.kinematic_el[ev],
-                                    _st_group(g, ev), _scratch(g, "sv", (2 * nv - 1, 14)))
-            st = bp.spacetime_boxes(bt, x, g.tris, x1, infl, ~g.kinematic_el[g.tri_elem],
-                                    _st_group(g, g.tri_elem), _scratch(g, "st", (2 * nt - 1, 14)))
-        cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=g.buf_vf_st if split else g.buf_vf,
-                              st_a=sv, st_b=st)
+        out = g.buf_vf_st if split else g.buf_vf
+        if COLUMN_GRID:
+            if spacetime:
+                ev = g.vert_elem[g.verts]
+                sv = bp.spacetime_prim_boxes(x, g.verts, x1, infl, ~g.kinematic_el[ev],
+                                             _st_group(g, ev), _scratch(g, "sv_p", (nv, 14)))
+                st = bp.spacetime_prim_boxes(x, g.tris, x1, infl, ~g.kinematic_el[g.tri_elem],
+                                             _st_group(g, g.tri_elem),
+                                             _scratch(g, "st_p", (nt, 14)))
+            cand = bp.column_query_pairs(lo_v, hi_v, lo_t, hi_t, g.verts, g.tris, out=out,
+                                         st_a=sv, st_b=st)
+        else:
+            bv = bp.build_bvh(lo_v, hi_v)
+            bt = bp.build_bvh(lo_t, hi_t)
+            if spacetime:
+                # kinematic objects never collide with each other: their subtrees are not
+                # paired and only the self pairs of an element are tested in space-time
+                ev = g.vert_elem[g.verts]
+                sv = bp.spacetime_boxes(bv, x, g.verts, x1, infl, ~g.kinematic_el[ev],
+                                        _st_group(g, ev), _scratch(g, "sv", (2 * nv - 1, 14)))
+                st = bp.spacetime_boxes(bt, x, g.tris, x1, infl, ~g.kinematic_el[g.tri_elem],
+                                        _st_group(g, g.tri_elem),
+                                        _scratch(g, "st", (2 * nt - 1, 14)))
+            cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=out, st_a=sv, st_b=st)
         n = len(cand)
         if n:
             rows, nrm, tgt, mu, one = _row_buffers(g, "vf", n)
@@ -473,12 +506,20 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
         lo_e, hi_e = bp.primitive_boxes(x, g.edges, x1, infl,
                                         _scratch(g, "lo_e", (ne, 3)),
                                         _scratch(g, "hi_e", (ne, 3)))
-        be = bp.build_bvh(lo_e, hi_e)
-        se = bp.spacetime_boxes(be, x, g.edges, x1, infl, ~g.kinematic_el[g.edge_elem],
-                                _st_group(g, g.edge_elem), _scratch(g, "se", (2 * ne - 1, 14))) \
-            if spacetime else None
-        cand = bp.query_self(be, g.edges, st=se,
-                             out=g.buf_ee_st if split else g.buf_ee)
+        out = g.buf_ee_st if split else g.buf_ee
+        if COLUMN_GRID:
+            se = bp.spacetime_prim_boxes(x, g.edges, x1, infl, ~g.kinematic_el[g.edge_elem],
+                                         _st_group(g, g.edge_elem),
+                                         _scratch(g, "se_p", (ne, 14))) \
+                if spacetime else None
+            cand = bp.column_query_self(lo_e, hi_e, g.edges, st=se, out=out)
+        else:
+            be = bp.build_bvh(lo_e, hi_e)
+            se = bp.spacetime_boxes(be, x, g.edges, x1, infl, ~g.kinematic_el[g.edge_elem],
+                                    _st_group(g, g.edge_elem),
+                                    _scratch(g, "se", (2 * ne - 1, 14))) \
+                if spacetime else None
+            cand = bp.query_self(be, g.edges, st=se, out=out)
         n = len(cand)
         if n:
             rows, nrm, tgt, mu, _ = _row_buffers(g, "ee", n)

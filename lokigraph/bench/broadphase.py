@@ -16,7 +16,11 @@ Timed, each as the median over ``repeats`` runs after a JIT warm-up run:
 * query: self vertex-triangle (:func:`query_self_vf`) plus self edge-edge (:func:`query_self_ee`) on
   the refit trees, output into reused :class:`PairBuffer`\\ s (so every timed query is the
   single-pass traversal: the warm-up run sized the buffers' scratch);
-* refit+query: the per-substep cost of detection with trees kept between substeps.
+* refit+query: the per-substep cost of detection with trees kept between substeps;
+* sorted column grid: the same queries without trees (:func:`column_query_pairs`,
+  :func:`column_query_self` on the boxes of the next step, into reused buffers), timed in the
+  same runs, interleaved with the BVH's; its pair counts must equal the BVH's. "boxes" is the
+  box computation alone (the grid has no tree to refit), compared with the BVH's refit.
 """
 
 from __future__ import annotations
@@ -90,27 +94,54 @@ def bench_one(n_tri: int, repeats: int):
         ee = bp.query_self_ee(trees[1], E, out=buf_ee)
         return vf.shape[0], ee.shape[0]
 
-    tb, tr, tq = [], [], []
-    counts = None
-    for rep in range(repeats + 1):  # run 0 is the JIT warm-up
+    col_vf, col_ee = bp.PairBuffer(), bp.PairBuffer()
+
+    def col_boxes():
+        bp.primitive_boxes(X1, verts, X2, thick, lo_v, hi_v)
+        bp.primitive_boxes(X1, E, X2, thick, lo_e, hi_e)
+        bp.primitive_boxes(X1, F, X2, thick, lo_f, hi_f)
+
+    def col_query():
+        vf = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, verts, F, out=col_vf)
+        ee = bp.column_query_self(lo_e, hi_e, E, out=col_ee)
+        return vf.shape[0], ee.shape[0]
+
+    tb, tr, tq, tcb, tcq, cpu_bvh, cpu_col = [], [], [], [], [], [], []
+    counts = col_counts = None
+    for rep in range(repeats + 1):  # run 0 is the JIT warm-up; BVH and columns interleaved
         t0 = time.perf_counter()
         trees = build()
         t1 = time.perf_counter()
+        c1 = time.process_time()
         refit(trees)
         t2 = time.perf_counter()
         counts = query(trees)
         t3 = time.perf_counter()
+        c2 = time.process_time()
+        col_boxes()
+        t4 = time.perf_counter()
+        col_counts = col_query()
+        t5 = time.perf_counter()
+        c3 = time.process_time()
         if rep:
             tb.append(t1 - t0)
             tr.append(t2 - t1)
             tq.append(t3 - t2)
+            tcb.append(t4 - t3)
+            tcq.append(t5 - t4)
+            cpu_bvh.append(c2 - c1)
+            cpu_col.append(c3 - c2)
+    if col_counts != counts:
+        raise RuntimeError(f"column grid found {col_counts} pairs, the BVH {counts}")
     trees = build()
     cost_build = bp.bvh_cost(trees[2])
     refit(trees)
     cost_refit = bp.bvh_cost(trees[2])
     return dict(tris=len(F), verts=nv, edges=len(E), build=1e3 * np.median(tb),
                 refit=1e3 * np.median(tr), query=1e3 * np.median(tq), vf=counts[0], ee=counts[1],
-                move=step_move, cost=cost_refit / cost_build)
+                move=step_move, cost=cost_refit / cost_build, col_boxes=1e3 * np.median(tcb),
+                col_query=1e3 * np.median(tcq), cpu_bvh=1e3 * np.median(cpu_bvh),
+                cpu_col=1e3 * np.median(cpu_col))
 
 
 def main(argv=None):
@@ -137,6 +168,18 @@ def main(argv=None):
         rows.append(r)
         print(f"{r['tris']:>10d} {r['verts']:>9d} {r['build']:>9.2f} {r['refit']:>9.2f} {r['query']:>9.2f} "
               f"{r['refit'] + r['query']:>12.2f} {r['vf']:>10d} {r['ee']:>10d} {r['cost']:>16.3f}")
+    print("sorted column grid (column_query_pairs / column_query_self, no trees; same pair "
+          "counts), interleaved with the BVH runs above:")
+    hdr = (f"{'triangles':>10} {'boxes ms':>9} {'query ms':>9} {'boxes+query':>12} "
+           f"{'BVH CPU ms':>11} {'grid CPU ms':>12} {'CPU ratio':>10}")
+    print(hdr)
+    print("-" * len(hdr))
+    for r in rows:
+        print(f"{r['tris']:>10d} {r['col_boxes']:>9.2f} {r['col_query']:>9.2f} "
+              f"{r['col_boxes'] + r['col_query']:>12.2f} {r['cpu_bvh']:>11.2f} "
+              f"{r['cpu_col']:>12.2f} {r['cpu_col'] / r['cpu_bvh']:>10.3f}")
+    print("(CPU: process time of the BVH's refit+query and of the grid's boxes+query, all threads; "
+          "ratio grid / BVH)")
     print("max vertex motion per step [edge lengths]: "
           + ", ".join(f"{r['move']:.3f}" for r in rows))
     return 0

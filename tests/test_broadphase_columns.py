@@ -1,0 +1,239 @@
+"""Sorted column grid (``broadphase.column_query_self`` / ``column_query_pairs``): exactly the
+candidate set of the BVH queries (set equality, rows in another order) on the broad-phase
+benchmark's rolled sheet, on cloth and triangle soups with space-time boxes, inactive primitives
+and groups, and on random boxes of very different sizes (the big-box path), and the same rows
+in the same order on one and two threads."""
+
+import numba
+import numpy as np
+import pytest
+
+from lokigraph.behaviors.collision import broadphase as bp
+from lokigraph.bench.broadphase import rolled_sheet
+
+from test_broadphase import as_set, brute_cross, brute_self, make_mesh
+
+
+def _bvh_self(lo, hi, P, st_prims=None, X0=None, X1=None, thick=0.0, active=None, group=None):
+    tree = bp.build_bvh(lo, hi)
+    st = None
+    if X0 is not None:
+        st = bp.spacetime_boxes(tree, X0, P, X1, thick, active, group)
+    return bp.query_self(tree, P, st=st)
+
+
+def _bvh_pairs(lo_a, hi_a, lo_b, hi_b, Pa, Pb, X0=None, X1=None, thick=0.0, act=(None, None),
+               grp=(None, None)):
+    ta, tb = bp.build_bvh(lo_a, hi_a), bp.build_bvh(lo_b, hi_b)
+    sa = sb = None
+    if X0 is not None:
+        sa = bp.spacetime_boxes(ta, X0, Pa, X1, thick, act[0], grp[0])
+        sb = bp.spacetime_boxes(tb, X0, Pb, X1, thick, act[1], grp[1])
+    return bp.query_pairs(ta, tb, Pa, Pb, st_a=sa, st_b=sb)
+
+
+@pytest.mark.parametrize("n", [20, 45])
+def test_rolled_sheet_matches_bvh(n):
+    X0, F, h = rolled_sheet(n, 0.0)
+    X1, _, _ = rolled_sheet(n, 1.0)
+    E = bp.mesh_edges(F)
+    V = np.arange(len(X0))
+    thick = np.full(len(X0), 0.1 * h)
+    lo_e, hi_e = bp.primitive_boxes(X0, E, X1, thick)
+    lo_v, hi_v = bp.primitive_boxes(X0, V, X1, thick)
+    lo_f, hi_f = bp.primitive_boxes(X0, F, X1, thick)
+    ee = bp.column_query_self(lo_e, hi_e, E)
+    assert len(ee) > 1000
+    assert as_set(ee) == as_set(_bvh_self(lo_e, hi_e, E))
+    assert np.all(ee[:, 0] < ee[:, 1])
+    vf = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F)
+    assert len(vf) > 100
+    assert as_set(vf) == as_set(_bvh_pairs(lo_v, hi_v, lo_f, hi_f, V, F))
+    # with space-time boxes (two groups, some inactive primitives)
+    rng = np.random.default_rng(n)
+    ge, gv, gf = (rng.integers(0, 2, len(E)), rng.integers(0, 2, len(V)),
+                  rng.integers(0, 2, len(F)))
+    ae, av, af = (rng.random(len(E)) > 0.3, rng.random(len(V)) > 0.3, rng.random(len(F)) > 0.3)
+    se = bp.spacetime_prim_boxes(X0, E, X1, thick, ae, ge)
+    got = bp.column_query_self(lo_e, hi_e, E, st=se)
+    ref = _bvh_self(lo_e, hi_e, E, X0=X0, X1=X1, thick=thick, active=ae, group=ge)
+    assert 0 < len(got) < len(ee)
+    assert as_set(got) == as_set(ref)
+    sv = bp.spacetime_prim_boxes(X0, V, X1, thick, av, gv)
+    sf = bp.spacetime_prim_boxes(X0, F, X1, thick, af, gf)
+    got = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F, st_a=sv, st_b=sf)
+    ref = _bvh_pairs(lo_v, hi_v, lo_f, hi_f, V, F, X0, X1, thick, (av, af), (gv, gf))
+    assert 0 < len(got) < len(vf)
+    assert as_set(got) == as_set(ref)
+
+
+@pytest.mark.parametrize("kind", ["cloth", "soup"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_meshes_match_bvh_with_spacetime(kind, seed):
+    X0, X1, _, F = make_mesh(kind, seed)
+    E = bp.mesh_edges(F)
+    V = np.arange(len(X0))
+    rng = np.random.default_rng(seed)
+    thick = 0.02 * rng.random(len(X0))
+    lo_e, hi_e = bp.primitive_boxes(X0, E, X1, thick)
+    lo_v, hi_v = bp.primitive_boxes(X0, V, X1, thick)
+    lo_f, hi_f = bp.primitive_boxes(X0, F, X1, thick)
+    assert as_set(bp.column_query_self(lo_e, hi_e, E)) == brute_self(lo_e, hi_e, E)
+    assert as_set(bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F)) == \
+        brute_cross(lo_v, hi_v, lo_f, hi_f, V, F)
+    g = rng.integers(0, 3, len(E))
+    a = rng.random(len(E)) > 0.5
+    se = bp.spacetime_prim_boxes(X0, E, X1, thick, a, g)
+    assert as_set(bp.column_query_self(lo_e, hi_e, E, st=se)) == \
+        as_set(_bvh_self(lo_e, hi_e, E, X0=X0, X1=X1, thick=thick, active=a, group=g))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_random_boxes_of_mixed_sizes_match_brute_force(seed):
+    """Boxes from points to the whole scene (the big boxes are tested against all), flat boxes,
+    boxes sharing faces exactly (closed overlap), no primitives (nothing skipped)."""
+    rng = np.random.default_rng(seed)
+    n = 700
+    c = rng.random((n, 3))
+    ext = 0.03 * rng.random((n, 3)) ** 3
+    ext[rng.random(n) < 0.02] *= 400.0  # a few big boxes
+    ext[rng.random((n, 3)) < 0.05] = 0.0  # flat and point boxes
+    lo = c - ext
+    hi = c + ext
+    lo[1] = hi[0]  # touching boxes overlap
+    lo[5] = -10.0
+    hi[5] = 10.0  # one box over everything
+    got = bp.column_query_self(lo, hi)
+    ref = brute_self(lo, hi, np.arange(n)[:, None] + n)  # no shared vertices
+    assert as_set(got) == ref
+    m = 300
+    got = bp.column_query_pairs(lo[:m], hi[:m], lo[m:], hi[m:])
+    assert as_set(got) == brute_cross(lo[:m], hi[:m], lo[m:], hi[m:])
+
+
+def test_degenerate_inputs():
+    z = np.zeros((0, 3))
+    assert bp.column_query_self(z, z).shape == (0, 2)
+    one = np.zeros((1, 3))
+    assert bp.column_query_self(one, one).shape == (0, 2)
+    assert bp.column_query_pairs(one, one, z, z).shape == (0, 2)
+    same = np.zeros((50, 3))  # 50 equal point boxes: every pair
+    assert len(bp.column_query_self(same, same)) == 50 * 49 // 2
+    assert len(bp.column_query_pairs(same[:20], same[:20], same, same)) == 20 * 50
+    big = np.stack([np.zeros(3), 5 * np.ones(3)])  # every box big (spread over two columns)
+    lo = np.concatenate([big[:1] - 1, big[:1] + 3])
+    assert as_set(bp.column_query_self(lo, lo + 3)) == brute_self(lo, lo + 3, [[0], [1]])
+    with pytest.raises(ValueError):
+        bp.column_query_self(np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((2, 2), np.int64))
+
+
+def test_rows_independent_of_thread_count():
+    X0, F, h = rolled_sheet(30, 0.0)
+    X1, _, _ = rolled_sheet(30, 1.0)
+    E = bp.mesh_edges(F)
+    lo, hi = bp.primitive_boxes(X0, E, X1, 0.1 * h)
+    threads = numba.get_num_threads()
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has one thread")
+    try:
+        numba.set_num_threads(1)
+        one = bp.column_query_self(lo, hi, E).copy()
+        numba.set_num_threads(2)
+        two = bp.column_query_self(lo, hi, E, out=bp.PairBuffer())
+    finally:
+        numba.set_num_threads(threads)
+    assert np.array_equal(one, two)
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_single_pass_with_buffer_gives_the_two_pass_rows(threads):
+    """A reused PairBuffer sweeps once into scratch sized from its previous query; slots that
+    overflow (the pair count grows 10x between queries here) are swept again. The rows and
+    their order are those of the two-pass query without a buffer, big boxes included."""
+    if threads > numba.config.NUMBA_NUM_THREADS:
+        pytest.skip("numba has one thread")
+    X0, F, h = rolled_sheet(30, 0.0)
+    X1, _, _ = rolled_sheet(30, 1.0)
+    E = bp.mesh_edges(F)
+    V = np.arange(len(X0))
+    old = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        bee, bvf = bp.PairBuffer(), bp.PairBuffer()
+        for r in (0.0, 0.1 * h, 0.01 * h, 0.3 * h, 0.3 * h):
+            lo_e, hi_e = bp.primitive_boxes(X0, E, X1, r)
+            lo_v, hi_v = bp.primitive_boxes(X0, V, X1, r)
+            lo_f, hi_f = bp.primitive_boxes(X0, F, X1, r)
+            lo_f[3] -= 1.0  # a big box
+            ref = bp.column_query_self(lo_e, hi_e, E)
+            assert np.array_equal(bp.column_query_self(lo_e, hi_e, E, out=bee), ref)
+            ref = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F)
+            assert np.any(ref[:, 1] == 3)
+            assert np.array_equal(bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F, out=bvf),
+                                  ref)
+    finally:
+        numba.set_num_threads(old)
+
+
+def test_contacts_detect_the_same_rows_with_either_broad_phase(tmp_path, monkeypatch):
+    """``contacts.COLUMN_GRID``: every detection of the cloth dropped on the sphere (24 x 24,
+    7 frames: the cloth lands around frame 6; swept-box and space-time detections, the sphere
+    in the same group) gives the same filtered vertex-face and edge-edge rows with the column
+    grid as with the trees (as sets: only their order differs)."""
+    from pathlib import Path
+
+    from lokigraph.api import compile_file
+    from lokigraph.behaviors.collision import contacts as C
+    from lokigraph.run import Simulation
+
+    src = Path(__file__).resolve().parents[1] / "graphs" / "bench" / "cloth_sphere_64.yaml"
+    path = tmp_path / "drop.yaml"
+    path.write_text(src.read_text().replace("resolution: [64, 64]", "resolution: [24, 24]"))
+    orig = C._detect_group
+    seen = {"calls": 0, "rows": 0, "st": 0}
+
+    def both(g, x, x1, infl, v, h, spacetime=False):
+        out = {}
+        for flag in (False, True):
+            monkeypatch.setattr(C, "COLUMN_GRID", flag)
+            out[flag] = orig(g, x, x1, infl, v, h, spacetime)
+            out[flag] = [(r[0].copy(), r[2].copy()) for r in out[flag][:2]]
+        for (rows_t, tgt_t), (rows_c, tgt_c) in zip(out[False], out[True]):
+            key_t = sorted(zip(map(tuple, rows_t.tolist()), tgt_t.tolist()))
+            key_c = sorted(zip(map(tuple, rows_c.tolist()), tgt_c.tolist()))
+            assert key_t == key_c
+            seen["rows"] += len(rows_t)
+        seen["calls"] += 1
+        seen["st"] += bool(spacetime)
+        return orig(g, x, x1, infl, v, h, spacetime)
+
+    monkeypatch.setattr(C, "_detect_group", both)
+    sim = Simulation(compile_file(path))
+    for _ in range(7):
+        sim.step_frame()
+    assert seen["calls"] > 10 and seen["st"] > 0 and seen["rows"] > 1000
+
+
+def test_non_finite_boxes_fall_back_to_the_trees():
+    """NaN or infinite coordinates (a diverged simulation) would overflow the column indices:
+    the trees answer instead, the same rows as the tree query."""
+    rng = np.random.default_rng(5)
+    lo = rng.random((200, 3))
+    hi = lo + 0.05
+    lo[7] = np.nan
+    hi[9, 1] = np.inf
+    P = np.arange(200)[:, None]
+    ref = bp.query_self(bp.build_bvh(lo, hi), P)
+    assert np.array_equal(bp.column_query_self(lo, hi, P), ref)
+    assert len(ref) > 0
+    ref = bp.query_pairs(bp.build_bvh(lo[:80], hi[:80]), bp.build_bvh(lo[80:], hi[80:]))
+    assert np.array_equal(bp.column_query_pairs(lo[:80], hi[:80], lo[80:], hi[80:]), ref)
+    X0 = rng.random((60, 3))
+    X1 = X0 + 0.01
+    X0[3] = 1e200  # far beyond any column count
+    E = np.stack([np.arange(59), np.arange(1, 60)], 1)
+    lo_e, hi_e = bp.primitive_boxes(X0, E, X1, 0.02)
+    st = bp.spacetime_prim_boxes(X0, E, X1, 0.02)
+    tree = bp.build_bvh(lo_e, hi_e)
+    ref = bp.query_self(tree, E, st=bp.spacetime_boxes(tree, X0, E, X1, 0.02))
+    assert as_set(bp.column_query_self(lo_e, hi_e, E, st=st)) == as_set(ref)
