@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from lokigraph.behaviors.solvers.implicit.contact import (extend_live, lag_rows, lag_rows_live,
-                                                          row_energy)
+                                                          row_energy, start_targets,
+                                                          start_targets_on)
 from lokigraph.behaviors.solvers.implicit.energy import limit_energy
 
 
@@ -66,6 +67,38 @@ def test_live_rows_give_the_same_energy_as_all_rows():
                             np.zeros(n, bool), sel[:ns])
             assert E > 0.0
             assert E2 == E and np.array_equal(g2, g) and np.array_equal(A2, A)
+
+
+def test_start_targets_hold_only_the_flagged_rows():
+    """start_targets_on (violated_rows: hold / hold_kinematic): a row its start positions
+    violate gets its start gap as target only when one of its vertices is flagged; unflagged
+    and satisfied rows keep the pipeline's target; all flagged is start_targets bitwise."""
+    rng = np.random.default_rng(5)
+    n, m = 40, 60
+    rows, nrm, tgt = _rows(rng, n, m)
+    x0 = rng.uniform(-0.2, 0.2, size=(n, 3))
+    x0[:, 1] = rng.uniform(-0.01, 0.03, size=n)  # some rows start violated
+    coef = np.zeros((m, 4))
+    kr, lam = np.zeros(m), np.zeros(m)
+    fixed = np.zeros(n, bool)
+    lag_rows(x0, fixed, np.full(n, 1e-3), 1e3, rows, nrm, tgt, True, coef,
+             kr, lam)
+    gap = np.einsum("rj,rjq,rq->r", coef, x0[rows], nrm)
+    sel = np.arange(m)
+    on = np.zeros(n, bool)
+    on[rng.choice(n, 10, replace=False)] = True  # the "kinematic" vertices
+    out_all, out_on = np.zeros(m), np.zeros(m)
+    low_all = start_targets(x0, rows, nrm, tgt, coef, out_all, sel)
+    low_on = start_targets_on(x0, rows, nrm, tgt, coef, out_on, sel, on)
+    violated = gap < tgt
+    flagged = on[rows].any(axis=1)
+    assert 0 < low_on < low_all == violated.sum()
+    assert low_on == (violated & flagged).sum()
+    assert np.array_equal(out_on, np.where(violated & flagged, out_all, tgt))
+    assert np.allclose(out_all, np.minimum(tgt, gap), rtol=0, atol=1e-15)
+    out_every = np.zeros(m)
+    start_targets_on(x0, rows, nrm, tgt, coef, out_every, sel, np.ones(n, bool))
+    assert np.array_equal(out_every, out_all)
 
 
 def test_limit_energy_gradient_and_psd_blocks():

@@ -69,11 +69,13 @@ elements:
             assert not any("newton_iterations" in s for s in st)
 
 
-# The quick cases that pass with the implicit solver (`lokigraph stress --quick --solver
-# implicit`); "cloth starting interpenetrated" does not (its energy grows by 0.05 J from frame 2).
+# Every quick case passes with the implicit solver (`lokigraph stress --quick --solver
+# implicit`); "cloth starting interpenetrated" since violated_rows: hold_kinematic (with 'hold'
+# its kinetic energy exceeds the gravity work by 0.0021 J at frame 2, -0.0014 J now).
 PASSING = ["one substep per 24 fps frame", "Young's modulus 1e9 Pa",
            "mass ratio 1e4 between attached parts", "projectile at 20 m/s through cloth",
-           "sliver and zero-area triangles", "impossible pinch", "random initial velocities"]
+           "sliver and zero-area triangles", "impossible pinch", "cloth starting interpenetrated",
+           "random initial velocities"]
 
 
 @pytest.mark.parametrize("name", PASSING)

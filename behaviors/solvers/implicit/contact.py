@@ -372,6 +372,13 @@ def extend_live(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam
 
 @njit(cache=True)
 def start_targets(x, rows, nrm, target, coef, out, sel):
+    """``start_targets_on`` for every row in ``sel``."""
+    return start_targets_on(x, rows, nrm, target, coef, out, sel,
+                            np.ones(x.shape[0], dtype=np.bool_))
+
+
+@njit(cache=True)
+def start_targets_on(x, rows, nrm, target, coef, out, sel, on):
     """The targets of the contact rows in the Newton solve: ``min(target, gap)`` with ``gap``
     the row's signed gap along its normal at x (the start of the substep, coefficients
     ``coef`` lagged there). A row its pair already violates at the start (a crossed pair's
@@ -379,11 +386,16 @@ def start_targets(x, rows, nrm, target, coef, out, sel):
     approaching in the solve: its penalty holds no energy at the start that the solve would
     turn into motion; the recovery push stays with CollisionConstraint's projection pass,
     as Nucleus applies it. Only the rows in ``sel`` are visited (the live rows at x: the
-    others have gap > target with any coefficients, ``_gap_bound``, and keep it). Returns the
-    number of rows lowered."""
+    others have gap > target with any coefficients, ``_gap_bound``, and keep it). Only rows
+    with a vertex flagged in ``on`` are lowered (``violated_rows: hold_kinematic``: the rows
+    against kinematic vertices); the others keep their target. Returns the number of rows
+    lowered."""
     low = 0
     for i in range(sel.shape[0]):
         r = sel[i]
+        if not (on[rows[r, 0]] or on[rows[r, 1]] or on[rows[r, 2]] or on[rows[r, 3]]):
+            out[r] = target[r]
+            continue
         g = 0.0
         for j in range(4):
             a = rows[r, j]

@@ -62,17 +62,24 @@ complementarity solve of the Loki supplement eq. 5-7: contacts leave a small pen
 rest ~ g h^2 / contact_stiffness) that the safety projection removes.
 
 Safeguards of the contact rows, measured with ``lokigraph stress --solver implicit``
-(``--quick``: 16x16 cloth unless said): ``violated_rows: hold`` (rows the start of the substep
-already violates only stop approaching in the solve; CollisionConstraint's projection pass
-pushes them back as in Nucleus) and ``start_at_rest`` (Newton starts from x^n where E is lower
+(``--quick``: 16x16 cloth unless said; the figures of this paragraph up to the last two
+sentences are from before ``hold_kinematic``): ``violated_rows: hold`` (rows the start of the
+substep already violates only stop approaching in the solve; CollisionConstraint's projection
+pass pushes them back as in Nucleus) and ``start_at_rest`` (Newton starts from x^n where E is lower
 there), both on by default; ``contact_reach`` (near rows' curvature in the Newton matrix), off
 by default. Pinch case (cloth vertex speed bound 0.5 m/s): none of them 0.65 m/s (fails),
 hold + rest 0.38 m/s, hold + rest + reach 0.0005 m 0.22 m/s; reach 0.0005 m with hold but no
 rest, or with neither, fails (speed, frames 30-36). Projectile at 48x48: hold + rest 0
 crossing pairs (passes), hold + rest + reach 0.0005 m 22 pairs (fails), push + no rest + reach
 0.0005 m 0; at 16x16 hold + rest + reach 0.002 m gives 57 pairs. "Cloth starting
-interpenetrated" (energy bound 1e-6 J) fails in every setting: worst energy excess 0.28 J
-with none, 0.053 J with hold + rest, 0.0066 J with hold + rest + reach 0.0005 m. The 16x16
+interpenetrated" (energy bound 1e-6 J) failed in every one of those settings: worst energy
+excess 0.28 J with none, 0.053 J with hold + rest, 0.0066 J with hold + rest + reach
+0.0005 m (0.0021 J with hold + rest and the defaults since). ``violated_rows:
+hold_kinematic`` (the default now) holds only the rows against kinematic vertices, where the
+pinch needs it, and lets the solve push the crossed self pairs against the cloth's
+elasticity instead of leaving that push to the projection pass, whose stretch the next solve
+released as motion (measured in the Field): the case passes at --quick and full size, and the
+pinch, sleeve_pinch, sleeve_elbow, trouser knee and 64x64 drop keep their figures. The 16x16
 cloth-on-sphere-mesh test (1 substep): max strain 1.7 % with none, 0.9 % with hold + rest,
 36 % with hold + reach 0.002 m and no rest.
 
@@ -151,7 +158,7 @@ from lokigraph.errors import InputError
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
 from .contact import (contact_energy_al, extend_live, lag_contacts_al, lag_rows, lag_rows_live,
-                      row_energy, row_residuals, safety_project, start_targets,
+                      row_energy, row_residuals, safety_project, start_targets_on,
                       update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, limit_energy, scatter_blocks
 from .linear import BlockJacobi, Identity, SmoothedAggregation
@@ -280,13 +287,27 @@ class ImplicitParams(Params):
         "colliders in the solve: 'inertial' x + h v + h^2 f / m (exact for free particles), "
         "'velocity' x + h v (a resting contact starts where it rests instead of h^2 g inside "
         "the collider, where the lagged normal forces of the first iterations are far off).")
-    violated_rows: Literal["hold", "push"] = Field(
-        "hold", description="Contact rows of the collision pipeline that the start of the "
+    violated_rows: Literal["hold", "hold_kinematic", "push"] = Field(
+        "hold_kinematic", description="Contact rows of the collision pipeline that the start of the "
         "substep already violates (crossed pairs, pairs pressed inside their thickness): "
         "'hold' gives them the target min(target, start gap) in the Newton solve (they stop "
         "approaching; CollisionConstraint's projection pass pushes them back as in Nucleus), "
         "'push' the pipeline's target (their penalty holds energy at the start, which the "
-        "solve turns into motion). Counted per frame as ``held_rows``.")
+        "solve turns into motion), 'hold_kinematic' holds only the rows with a kinematic "
+        "vertex (cloth against animated bodies, compliant ones included) and pushes the others "
+        "(self and dynamic-dynamic pairs). Counted per frame as ``held_rows``. Measured on the "
+        "stress case 'cloth starting interpenetrated' (crossed.obj, the same for --quick and "
+        "full size): with 'hold' the crossed self pairs' recovery push is left to the "
+        "projection pass, which moves vertices by up to 1.2 cm (its iterations) and 2.1 cm "
+        "(CCD impact zones) in the first two substeps with no elasticity to resist; the hard "
+        "stretch rows start substep 2 holding 18.6 J of penalty and 732 J of hard_limit "
+        "energy (the 0.2 kg cloth has 0.002 J of kinetic energy), which the Newton solve "
+        "turns into motion: +0.0097 J of kinetic energy against 0.0042 J of gravity work in "
+        "that substep, 0.0021 J over the stress bound at frame 2 (fails). Kinetic energy minus "
+        "the gravity work at frame 2 (its worst frame; the tangle measures stay 37 / 139 in "
+        "each): hold +0.0021 J, push -0.0012 J, hold_kinematic -0.0014 J. Sleeve_pinch "
+        "(graphs/bench/implicit_knee.py, 60 frames, largest cloth speed from frame 5): hold "
+        "0.458 m/s, push 0.517 m/s.")
     start_at_rest: bool = Field(
         True, description="With contact rows of the collision pipeline in the solve, Newton "
         "starts from x^n (free vertices at rest, Dirichlet vertices at their targets) when the "
@@ -360,6 +381,20 @@ class ImplicitParams(Params):
         "the CG iterations; hard_multipliers: always 4.7 %, more augmented Lagrangian updates "
         "within the substep (2 / 4 Newton solves) 3.5 % / 9.3 %. Trouser knee (25 frames) "
         "2.19 -> 1.60 m/s, sleeve elbow 0.84 m/s from frame 8.")
+    compliant_carry: float = Field(
+        0.0, ge=0.0, le=1.0, description="With compliant_kinematics: dirichlet: the fraction "
+        "r of its last recession a compliant vertex keeps in the next Newton solve (its "
+        "Dirichlet target is the animated pose plus r times where the projection pass left it "
+        "relative to the last substep's animated pose; 0: the animated pose, as Nucleus "
+        "predicts it) [-]. Cause measured on graphs/examples/pinch.yaml (4 substeps): the "
+        "projection pass lets the compliant lid recede by up to 1.2 cm per substep around "
+        "frame 25, the next Newton solve puts it back on its animation into the cloth, which "
+        "it squeezes again (Newton at its cap, cloth speeds 0.4-0.53 m/s in the Newton "
+        "solutions of frames 25-26). Largest cloth speed from frame 5 (implicit_knee.py, 60 "
+        "frames): pinch 0.355 m/s at 0, 0.144 m/s at 0.5 (the lid recedes 9.5 mm at frame 25 "
+        "and is back on its animation over the last 10 frames, 0 intersecting pairs), 0.011 "
+        "m/s at 1 (40 frames); but sleeve_pinch 0.458 / 0.554 m/s and sleeve_elbow 1.11 / "
+        "1.25 m/s at 0 / 0.5: off by default.")
     hard_limit_stiffness: float = Field(
         100.0, gt=0, description="hard_limit: the extra stiffness of a row stretched past the "
         "limit, as a multiple of its hard penalty [-] (64x64 drop: 2.6 % at 100, 5.5 % at 10).")
@@ -415,6 +450,8 @@ class _ImplicitData:
     mesh: bool = False  # contact rows of CollisionDetect in the Newton solve
     rows: dict = field(default_factory=dict)  # grow-only buffers and this substep's views
     couplings: list = field(default_factory=list)  # SolverCoupling objects (model.data)
+    carry: np.ndarray | None = None  # compliant vertices held as Dirichlet (compliant_carry)
+    all_on: np.ndarray | None = None  # True per vertex (violated_rows: hold)
 
 
 class ImplicitSolver(Behavior):
@@ -439,6 +476,9 @@ class ImplicitSolver(Behavior):
             inertia = inertia.copy()
             inertia[compliant] = 1.0 / m.particle_inv_mass[compliant]
         d = _ImplicitData(damp, keyed, fixed, inertia, compliant)
+        dc = m.particle_compliant & m.particle_kinematic & ~compliant
+        d.carry = np.flatnonzero(dc) if dc.any() else None
+        d.all_on = np.ones(m.particle_count, dtype=np.bool_)
         if compliant.any():
             d.comp_idx = np.flatnonzero(compliant)
             tris = [np.asarray(e.geometry.triangles, dtype=np.int64) + e.vertex_offset
@@ -630,6 +670,9 @@ class ImplicitSolver(Behavior):
         kin = m.particle_kinematic
         if kin.any():
             xt[kin] = ctl.kinematic_q[kin]
+            if P.compliant_carry > 0.0 and d.carry is not None:  # keep part of the recession
+                ci = d.carry
+                xt[ci] += P.compliant_carry * (x[ci] - ctl.kinematic_q_prev[ci])
         if d.comp_idx is not None and _tangential_ratio(self) > 0.0:  # only 'hard' reads them
             self._compliant_normals(d, ctl.kinematic_q)
         xs = w["xs"]
@@ -742,7 +785,7 @@ class ImplicitSolver(Behavior):
                        np.zeros(cap), np.zeros(cap, np.uint8), np.zeros(cap, np.int64),
                        np.zeros(1, np.int64))
                 d.rows["buf"][kind] = buf
-            if self.params.violated_rows == "hold":  # the solve's targets (start_targets)
+            if self.params.violated_rows != "push":  # the solve's targets (start_targets)
                 tgt_solve = buf[4][:m]
                 tgt_solve[:] = tgt
             else:
@@ -857,10 +900,12 @@ class ImplicitSolver(Behavior):
             # the extensions below do not cover)
             live = P.contact_reach == 0.0
             self._lag_rows(ctx, d, w["x0"], live=live)
-            if P.violated_rows == "hold":
+            if P.violated_rows != "push":
                 low = 0
+                on = (ctx.model.particle_kinematic if P.violated_rows == "hold_kinematic"
+                      else d.all_on)
                 for rows, nrm, tg, _mu, coef, _k, _l, _p, _v, _m, sel, ns in d.rows["sets"]:
-                    low += start_targets(w["x0"], rows, nrm, tg, coef, tg, sel[:ns[0]])
+                    low += start_targets_on(w["x0"], rows, nrm, tg, coef, tg, sel[:ns[0]], on)
                 c["held_rows"] += low
                 self._lag_rows(ctx, d, w["x0"], live=live)
             if live:  # rows that the start guess and x^n may close, lagged at x^n
