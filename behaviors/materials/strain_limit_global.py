@@ -1,0 +1,362 @@
+"""Global strain-limit step: fast projection (Goldenthal et al. 2007, "Efficient simulation of
+inextensible cloth", section 4) of the edges over their strain limit, with the contacts.
+
+Gauss-Seidel moves the excess of an edge only to its neighbours; in a saturated region (a cloth
+draped over a sphere: every edge at its limit) the excess has to travel to the region's border,
+one edge per sweep, and 100 sweeps still leave 5.4 % on the 64 x 64 drop against a 5 % limit.
+The fast projection solves every active row at once. With the edge rows
+``C(x) = |x_a - x_b| - limit`` over their limit and their gradient ``J``, a Newton step on the
+constraint manifold is::
+
+    (J W J^T + alpha diag(J W J^T)) dlam = C,        x -= W J^T dlam
+
+(W: inverse masses, 0 for kinematic and pinned vertices), repeated until the worst edge excess
+is within the tolerance or the pass count. ``alpha`` (Levenberg-Marquardt) is needed: a
+triangle mesh has about three edges per vertex against two in-plane degrees of freedom, so in a
+saturated region the rows are nearly redundant and the plain step diverges.
+
+Contacts (``with_contacts``): 'filter' (default) makes W a 3 x 3 block per vertex, ``w (I -
+n n^T)`` for a vertex of a contact with a collider (n: its most closed contact's normal), so that
+the step slides cloth along the collider instead of into it; the system is then factorised once
+and reused (chord Newton: right-hand side and J at the current x) while each pass at least halves
+the worst excess and no edge outside the factorised set goes over. 'rows' adds the violated
+vertex-face / edge-edge contacts (``n . (x_v - sum b_k x_k) - target``, ``n . (x_a(s) - x_b(t))
+- target``, as ``project_vf`` / ``project_ee`` evaluate them) as rows of the same system,
+inequality by dropping rows whose multiplier pulls, factorised every pass. Friction is not part
+of the step. A step moves no vertex farther than half the shortest edge limit, and with contacts
+it is halved (up to 4 times) while the worst edge gets worse. The sparse system is factorised by
+SuperLU (scipy.sparse.linalg.splu, COLAMD); J is assembled in numba kernels, the products by
+scipy.sparse.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numba import njit
+
+from ..collision.narrowphase import _pt_tri_sq, _seg_seg_sq
+
+
+@njit(cache=True)
+def edge_rows(p, w, edges, limit, sel, near, tol, out_idx, out_c, out_n):
+    """Edges ``sel`` with ``|e| > (1 - near) limit`` and a movable vertex: their index, C [m]
+    and unit direction (x_a - x_b) / |e| into the out arrays. Returns (count, worst relative
+    excess |e| / limit - 1 over ``sel``, count over (1 + tol) limit)."""
+    k = 0
+    worst = -np.inf
+    over = 0
+    for ii in range(sel.shape[0]):
+        j = sel[ii]
+        a, b = edges[j, 0], edges[j, 1]
+        dx = p[a, 0] - p[b, 0]
+        dy = p[a, 1] - p[b, 1]
+        dz = p[a, 2] - p[b, 2]
+        ln = np.sqrt(dx * dx + dy * dy + dz * dz)
+        r = ln / limit[j] - 1.0
+        if r > worst:
+            worst = r
+        if r > tol:
+            over += 1
+        if r <= -near or ln < 1e-15 or w[a] + w[b] <= 0.0:
+            continue
+        out_idx[k] = j
+        out_c[k] = ln - limit[j]
+        out_n[k, 0] = dx / ln
+        out_n[k, 1] = dy / ln
+        out_n[k, 2] = dz / ln
+        k += 1
+    return k, worst, over
+
+
+@njit(cache=True)
+def contact_rows(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf, out_n,
+                 margin=0.0, collider_only=False):
+    """Contact rows (vertex-face when ``is_vf``, else edge-edge) with C < margin * target or
+    flagged in ``keep`` (which they are then added to); with ``collider_only`` only rows with a
+    kinematic vertex (w = 0): C [m] (< 0 when violated), the 4 vertices, their coefficients
+    and the normal, as ``project_vf`` / ``project_ee`` evaluate them (the closest
+    points and, on the start side, the current closest-point direction). Returns the count."""
+    k = 0
+    for r in range(rows.shape[0]):
+        i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+        if collider_only and w[i0] > 0.0 and w[i1] > 0.0 and w[i2] > 0.0 and w[i3] > 0.0:
+            continue
+        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+        if is_vf:
+            d2, b0, b1, b2 = _pt_tri_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1],
+                                        p[i1, 2], p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0],
+                                        p[i3, 1], p[i3, 2])
+            c0, c1, c2, c3 = 1.0, -b0, -b1, -b2
+        else:
+            d2, s, t = _seg_seg_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
+                                   p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])
+            c0, c1, c2, c3 = 1.0 - s, s, -(1.0 - t), -t
+        dv0 = c0 * p[i0, 0] + c1 * p[i1, 0] + c2 * p[i2, 0] + c3 * p[i3, 0]
+        dv1 = c0 * p[i0, 1] + c1 * p[i1, 1] + c2 * p[i2, 1] + c3 * p[i3, 1]
+        dv2 = c0 * p[i0, 2] + c1 * p[i1, 2] + c2 * p[i2, 2] + c3 * p[i3, 2]
+        if not (is_vf and onesided[r]):
+            dist = np.sqrt(d2)
+            if dist > 1e-12 and dv0 * n0 + dv1 * n1 + dv2 * n2 > 0.0:
+                n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
+        C = dv0 * n0 + dv1 * n1 + dv2 * n2 - target[r]
+        if C >= margin * target[r] and not keep[r]:
+            continue
+        den = c0 * c0 * w[i0] + c1 * c1 * w[i1] + c2 * c2 * w[i2] + c3 * c3 * w[i3]
+        if den <= 0.0:
+            continue
+        keep[r] = True
+        out_c[k] = C
+        out_v[k, 0], out_v[k, 1], out_v[k, 2], out_v[k, 3] = i0, i1, i2, i3
+        out_cf[k, 0], out_cf[k, 1], out_cf[k, 2], out_cf[k, 3] = c0, c1, c2, c3
+        out_n[k, 0], out_n[k, 1], out_n[k, 2] = n0, n1, n2
+        k += 1
+    return k
+
+
+@njit(cache=True)
+def contact_filter(w, c_v, c_cf, c_n, c_c, nc, best, out):
+    """Per-vertex inverse-mass blocks [1/kg] ``out`` (n, 3, 3) of the filtered global step:
+    ``w I`` for free vertices, ``w (I - n n^T)`` for the vertices of a contact row (those with
+    a coefficient over 0.05) along the normal of their most closed row (smallest C; ``best``
+    holds it), so that the step moves contacting vertices only in the contact's tangent
+    plane. Returns nothing."""
+    n = w.shape[0]
+    for i in range(n):
+        best[i] = np.inf
+    for r in range(nc):
+        for q in range(4):
+            v = c_v[r, q]
+            if abs(c_cf[r, q]) > 0.05 and w[v] > 0.0 and c_c[r] < best[v]:
+                best[v] = c_c[r]
+                for a in range(3):
+                    for b in range(3):
+                        out[v, a, b] = w[v] * ((1.0 if a == b else 0.0) - c_n[r, a] * c_n[r, b])
+    for i in range(n):
+        if best[i] == np.inf:
+            for a in range(3):
+                for b in range(3):
+                    out[i, a, b] = w[i] if a == b else 0.0
+
+
+@njit(cache=True)
+def _coo(w, edges, e_idx, e_n, ne, c_v, c_cf, c_n, nc, row0, ri, ci, vi):
+    """COO entries of J (rows: the ne edge rows, then the nc contact rows from ``row0``; columns:
+    3 per vertex), leaving out vertices with w = 0. Returns the entry count."""
+    k = 0
+    for r in range(ne):
+        j = e_idx[r]
+        for v, sgn in ((edges[j, 0], 1.0), (edges[j, 1], -1.0)):
+            if w[v] <= 0.0:
+                continue
+            for d in range(3):
+                ri[k] = r
+                ci[k] = 3 * v + d
+                vi[k] = sgn * e_n[r, d]
+                k += 1
+    for r in range(nc):
+        for q in range(4):
+            v = c_v[r, q]
+            cf = c_cf[r, q]
+            if w[v] <= 0.0 or cf == 0.0:
+                continue
+            for d in range(3):
+                ri[k] = row0 + r
+                ci[k] = 3 * v + d
+                vi[k] = cf * c_n[r, d]
+                k += 1
+    return k
+
+
+_NO_CONTACTS = (np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros((0, 3)), 0)
+
+
+class GlobalStrainStep:
+    """Work arrays of the global step for one StrainLimitConstraint (allocated at bind)."""
+
+    def __init__(self, n_vertices, edges, limit, sel):
+        m = len(sel)
+        self.edges, self.limit, self.sel = edges, limit, np.ascontiguousarray(sel, np.int64)
+        self.e_idx = np.zeros(m, np.int64)
+        self.e_c = np.zeros(m)
+        self.e_n = np.zeros((m, 3))
+        self.n = n_vertices
+        self.dmax = 0.5 * float(limit[sel].min()) if len(sel) else 0.0
+        self.w3 = None
+        self._blk = None
+        self.filter_min = 0.1
+        self.stats = {"passes": 0, "factorisations": 0, "rows": 0, "contact_rows": 0}
+
+    def _contacts(self, c, kind):
+        rows = getattr(c, kind)
+        cap = len(rows)
+        buf = getattr(self, "_cbuf_" + kind, None)
+        if buf is None or len(buf[0]) < cap:
+            cap = max(cap, 16) * 2
+            buf = (np.zeros(cap), np.zeros((cap, 4), np.int64), np.zeros((cap, 4)),
+                   np.zeros((cap, 3)), np.zeros(cap, np.bool_))
+            setattr(self, "_cbuf_" + kind, buf)
+        return buf
+
+    def worst(self, p, w, tol):
+        """Worst relative excess over the step's edges."""
+        return edge_rows(p, w, self.edges, self.limit, self.sel, -np.inf, tol, self.e_idx,
+                         self.e_c, self.e_n)[1]
+
+    def _contact_set(self, p, w, contacts, kinds, margin, collider_only):
+        """The contact rows (see ``contact_rows``) of every kind, concatenated."""
+        cs = []
+        for k in kinds:
+            cb = self._contacts(contacts, k)
+            nr = len(getattr(contacts, k))
+            nk = contact_rows(p, w, getattr(contacts, k), getattr(contacts, k + "_n"),
+                              getattr(contacts, k + "_target"),
+                              contacts.vf_onesided if k == "vf" else cb[4][:nr],
+                              k == "vf", cb[4][:nr], cb[0], cb[1], cb[2], cb[3], margin,
+                              collider_only)
+            if nk:
+                cs.append((cb[0][:nk], cb[1][:nk], cb[2][:nk], cb[3][:nk]))
+        if not cs:
+            return np.zeros(0), np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros((0, 3))
+        return tuple(np.concatenate([x[i] for x in cs]) for i in range(4))
+
+    def _jacobian(self, w, e_idx, e_n, ne, cv, ccf, cn, nc):
+        cap = 6 * ne + 12 * nc
+        ri = np.empty(cap, np.int64)
+        ci = np.empty(cap, np.int64)
+        vi = np.empty(cap)
+        nnz = _coo(w, self.edges, e_idx, e_n, ne, cv, ccf, cn, nc, ne, ri, ci, vi)
+        return sp.csr_matrix((vi[:nnz], (ri[:nnz], ci[:nnz])), shape=(ne + nc, 3 * self.n))
+
+    def _factor(self, J, ne, alpha, Wb):
+        """SuperLU of J W J^T + alpha diag(J W J^T) (W: the blocks ``Wb``, or the inverse
+        masses), and the rows kept: with the contact filter, edge rows it leaves less than a
+        tenth of their unfiltered motion for (their two vertices held along the edge) are
+        dropped (they would need large multipliers for little motion)."""
+        keep = None
+        if Wb is not None:
+            JW = (J @ Wb).tocsr()
+            dg = np.asarray(JW.multiply(J).sum(axis=1)).ravel()
+            d0 = np.asarray(J.multiply(J).multiply(self.w3[None, :]).sum(axis=1)).ravel()
+            ok = dg > self.filter_min * d0
+            if not ok.all():
+                keep = np.flatnonzero(ok)
+                J, JW = J[keep], JW[keep]
+        else:
+            JW = J.multiply(self.w3[None, :]).tocsr()
+        A = (JW @ J.T).tocsc()
+        A = A + sp.diags(alpha * A.diagonal() + 1e-300)
+        return spla.splu(A.tocsc(), permc_spec="COLAMD"), keep
+
+    def _move(self, p, w, tol, worst, dx, guard):
+        """p -= dx, the step capped at ``dmax`` per vertex and, with ``guard``, halved (up to 4
+        times) while the worst edge gets worse."""
+        big = np.sqrt(np.einsum("ij,ij->i", dx, dx).max())
+        if big > self.dmax:
+            dx *= self.dmax / big
+        p0 = p.copy() if guard else None
+        p -= dx
+        if guard:
+            for _h in range(4):
+                if self.worst(p, w, tol) <= max(worst, tol):
+                    break
+                dx *= 0.5
+                p[:] = p0 - dx
+
+    def run(self, p, w, contacts, passes, tol, near, alpha, with_contacts="filter"):
+        """Up to ``passes`` Newton steps on p (in place) until every edge is within
+        (1 + tol) limit. Returns the worst relative excess left.
+
+        'filter' (chord Newton): the contact filter is built once, from the contacts against
+        colliders at the start; the system is factorised for the active edges and reused in the
+        next passes (right-hand side C(x) of those rows, C clamped at 0 for rows that went
+        under their limit, J(x) for the motion) until an edge outside that set goes over its
+        limit or a pass fails to halve the worst excess. 'rows': the violated contacts are rows
+        of the system (inequality: rows whose multiplier pulls are dropped and the system solved
+        again), factorised every pass.
+        'none': edges only."""
+        if self.w3 is None or len(self.w3) != 3 * len(w):
+            self.w3 = np.repeat(w, 3)
+            self._mark = np.zeros(len(self.edges), np.bool_)
+        filt = with_contacts == "filter"
+        kinds = ()
+        if contacts is not None and with_contacts in ("rows", "filter"):
+            kinds = tuple(k for k in ("vf", "ee") if len(getattr(contacts, k)))
+            for k in kinds:
+                self._contacts(contacts, k)[4][:len(getattr(contacts, k))] = False
+        Wb = None
+        if filt:
+            cc, cv, ccf, cn = self._contact_set(p, w, contacts, kinds, 1.0, True)
+            if len(cc):
+                if self._blk is None or len(self._blk) != len(w):
+                    self._blk = np.zeros((len(w), 3, 3))
+                    self._best = np.zeros(len(w))
+                contact_filter(w, cv, ccf, cn, cc, len(cc), self._best, self._blk)
+                nb = len(w)
+                Wb = sp.bsr_matrix((self._blk, np.arange(nb), np.arange(nb + 1)),
+                                   shape=(3 * nb, 3 * nb)).tocsr()
+                self.stats["filtered"] = int((self._best < np.inf).sum())
+        lu = frozen = None
+        worst = last = np.inf
+        for _ in range(passes):
+            n_over, worst, over = edge_rows(p, w, self.edges, self.limit, self.sel, -tol, tol,
+                                            self.e_idx, self.e_c, self.e_n)
+            if over == 0 or n_over == 0:
+                break
+            if lu is not None and worst > 0.5 * last:
+                lu = None  # the chord steps converge slowly: factorise again
+            last = worst
+            if lu is not None and self._mark[self.e_idx[:n_over]].all():  # chord step
+                nf, _, _ = edge_rows(p, w, self.edges, self.limit, frozen, np.inf, tol,
+                                     self.f_idx, self.f_c, self.f_n)
+                if nf == len(frozen):
+                    J = self._jacobian(w, self.f_idx, self.f_n, nf, *_NO_CONTACTS)
+                    dlam = lu.solve(np.maximum(self.f_c[:nf], 0.0))
+                    JW = (J @ Wb) if Wb is not None else J.multiply(self.w3[None, :])
+                    self._move(p, w, tol, worst, (JW.T @ dlam).reshape(-1, 3), bool(kinds))
+                    self.stats["passes"] += 1
+                    continue
+            ne, _, _ = edge_rows(p, w, self.edges, self.limit, self.sel, near, tol,
+                                 self.e_idx, self.e_c, self.e_n)
+            if filt or not kinds:
+                J = self._jacobian(w, self.e_idx, self.e_n, ne, *_NO_CONTACTS)
+                lu, keep = self._factor(J, ne, alpha, Wb)
+                frozen = self.e_idx[:ne] if keep is None else self.e_idx[keep]
+                frozen = frozen.copy()
+                self._mark[:] = False
+                self._mark[frozen] = True
+                self.f_idx = np.zeros(len(frozen), np.int64)
+                self.f_c = np.zeros(len(frozen))
+                self.f_n = np.zeros((len(frozen), 3))
+                C = self.e_c[:ne] if keep is None else self.e_c[keep]
+                JW = (J @ Wb) if Wb is not None else J.multiply(self.w3[None, :])
+                if keep is not None:
+                    JW = JW.tocsr()[keep]
+                dx = JW.T @ lu.solve(C)
+            else:  # rows: the violated contacts join the system, factorised every pass
+                cc, cv, ccf, cn = self._contact_set(p, w, contacts, kinds, 0.0, False)
+                nc = len(cc)
+                J = self._jacobian(w, self.e_idx, self.e_n, ne, cv, ccf, cn, nc)
+                C = np.concatenate([self.e_c[:ne], cc])
+                for it in range(2):
+                    lu, _ = self._factor(J, ne, alpha, None)
+                    dlam = lu.solve(C)
+                    bad = np.zeros(len(C), np.bool_)
+                    bad[ne:] = dlam[ne:] > 0.0  # a contact pulling
+                    if it or not bad.any():
+                        break
+                    keep = np.flatnonzero(~bad)
+                    J, C = J[keep], C[keep]
+                dx = J.multiply(self.w3[None, :]).T @ dlam
+                lu = None
+                for k in kinds:  # rows join again only while violated
+                    self._contacts(contacts, k)[4][:] = False
+                self.stats["contact_rows"] = max(self.stats["contact_rows"], nc)
+            self._move(p, w, tol, worst, dx.reshape(-1, 3), bool(kinds))
+            self.stats["passes"] += 1
+            self.stats["factorisations"] += 1
+            self.stats["rows"] = max(self.stats["rows"], ne)
+        else:
+            worst = self.worst(p, w, tol)
+        return worst

@@ -1,0 +1,84 @@
+"""The global strain-limit step (strain_limit.global_passes, Goldenthal et al. 2007 fast
+projection): a cloth draped over a sphere saturates its strain limit over a region, which the
+Gauss-Seidel limit cannot relax; the global step holds it, with the sphere's contacts kept."""
+
+import numpy as np
+
+from lokigraph.api import compile_file
+from lokigraph.behaviors.topology import triangle_edges
+from lokigraph.run import Simulation
+
+
+def _drape(scene_file, passes, contacts="filter", frames=8, res=32, eps=0.01):
+    p = scene_file(f"""
+    lokigraph: 1
+    frames: {{start: 1, end: {frames + 1}, fps: 24}}
+    substeps: 2
+    graph_overrides: {{strain_limit: {{inextensible_max_strain: {eps}, global_passes: {passes},
+                                       global_contacts: {contacts}}}}}
+    elements:
+      - name: cloth
+        geometry:
+          generator: grid
+          params: {{size: [0.8, 0.8], resolution: [{res}, {res}], plane: xz, center: [0, 0.33, 0]}}
+        components:
+          Dynamic: {{mass_density: 0.15, damping: 0.2}}
+          DiscreteShell: {{bend_resistance: 2.0e-6}}
+          Collider: {{thickness: 0.002, friction: 0.3}}
+      - name: ball
+        geometry: {{generator: sphere, params: {{radius: 0.3, subdivisions: 4}}}}
+        components:
+          Kinematic: {{}}
+          Collider: {{thickness: 0.002, friction: 0.5, one_sided: true}}
+      - name: contact
+        components:
+          CollisionGroup: {{members: [cloth, ball], methods: [vertex_face, edge_edge, self]}}
+    """, f"drape_{passes}_{contacts}.yaml")
+    c = compile_file(p)
+    sim = Simulation(c)
+    cl, b = c.scene.element("cloth"), c.scene.element("ball")
+    E = triangle_edges(cl.geometry.triangles)
+    X = cl.geometry.points
+    L0 = np.linalg.norm(X[E[:, 1]] - X[E[:, 0]], axis=1)
+    strain, depth, pen = [], [], []
+    for _ in range(frames):
+        st = sim.step_frame()
+        q = sim.state.particle_q
+        qc, qb = q[cl.vertex_slice], q[b.vertex_slice]
+        strain.append((np.linalg.norm(qc[E[:, 1]] - qc[E[:, 0]], axis=1) / L0 - 1).max())
+        T = qb[b.geometry.triangles]  # the ball's inradius: a cloth vertex nearer is inside
+        nrm = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+        inr = np.abs(np.einsum("ij,ij->i", nrm, T[:, 0])
+                     / np.linalg.norm(nrm, axis=1)).min()
+        depth.append(np.linalg.norm(qc, axis=1).min() - inr)
+        pen.append(int(st.get("penetrations", 0) or 0))
+    return np.array(strain), np.array(depth), np.array(pen)
+
+
+
+def test_global_step_holds_a_saturated_drape(scene_file):
+    """A 32 x 32 inextensible cloth draped over a sphere with a 1 % strain limit: the Gauss-Seidel
+    limit (with its joint passes in the final collision rounds) leaves 3.3 % (measured, frame 7);
+    with the global step every edge stays under 1.5 % (measured 1.1-1.3 % depending on the
+    step's safeguards: what the CCD safe step and the next substep's iterations add after it),
+    and no cloth vertex enters the ball (measured: every vertex 4 mm or more outside the ball's
+    inradius) or crosses anything."""
+    s0, d0, pen0 = _drape(scene_file, 0)
+    assert s0[3:].max() > 0.025
+    s, d, pen = _drape(scene_file, 20)
+    assert s.max() < 0.015
+    assert (d > 0.0).all() and (pen == 0).all()
+
+
+if __name__ == "__main__":
+    import sys
+    import tempfile
+    from pathlib import Path
+
+    from conftest import write_scene
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for args in [(0,), (20, "filter"), (20, "rows"), (20, "none")]:
+            s, d, pen = _drape(lambda t, n: write_scene(Path(tmp), t, n), *args,
+                               frames=int(sys.argv[1]), res=int(sys.argv[2]))
+            print(args, np.round(100 * s, 2), np.round(1000 * d, 2), pen)
