@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from lokigraph.behaviors.solvers.implicit.contact import (extend_live, lag_rows, lag_rows_live,
-                                                          row_energy, start_targets,
-                                                          start_targets_on)
+                                                          lag_rows_sel, row_energy,
+                                                          start_targets, start_targets_on)
 from lokigraph.behaviors.solvers.implicit.energy import limit_energy
 
 
@@ -67,6 +67,50 @@ def test_live_rows_give_the_same_energy_as_all_rows():
                             np.zeros(n, bool), sel[:ns])
             assert E > 0.0
             assert E2 == E and np.array_equal(g2, g) and np.array_equal(A2, A)
+
+
+def test_lag_after_a_line_search_visits_only_the_listed_rows():
+    """After extend_live over the segment x -> x + dx, lagging at any point x + alpha dx of it
+    from the listed rows (lag_rows_sel, what the Newton loop does after a line search) gives
+    bitwise what lag_rows_live over every row gives: the same coefficients, stiffnesses,
+    normal forces, marks, live list and returned maxima; and rows do change between x and
+    the end point (the test can fail)."""
+    rng = np.random.default_rng(11)
+    n, m = 60, 500
+    mass = np.full(n, 1e-3)
+    fixed = np.zeros(n, bool)
+    fixed[:3] = True
+    x = rng.uniform(-0.05, 0.05, size=(n, 3))
+    x[:, 1] = rng.uniform(-0.01, 0.03, size=n)
+    changed = 0
+    for is_vf in (True, False):
+        rows, nrm, tgt = _rows(rng, n, m)
+        for trial in range(6):
+            dx = rng.normal(size=(n, 3)) * 0.006
+            dx[fixed] = 0.0
+            st = [np.zeros((m, 4)), np.zeros(m), np.zeros(m), np.zeros(m, np.uint8),
+                  np.zeros(m, np.int64)]
+            coef, kr, lam, mark, sel = st
+            _, ns0, *_ = lag_rows_live(x, fixed, mass, 100.0, rows, nrm, tgt, is_vf, coef, kr,
+                                       lam, 0.0, mark, sel)
+            ns = extend_live(x + dx, x, fixed, mass, 100.0, rows, nrm, tgt, is_vf, coef, kr,
+                             lam, mark, sel)
+            assert ns < m
+            for alpha in (1.0, 0.5, 0.125, 2.0 ** -9):
+                xa = x + alpha * dx
+                a = [v.copy() for v in (coef, kr, lam, mark, sel)]
+                b = [v.copy() for v in (coef, kr, lam, mark, sel)]
+                ra = lag_rows_live(xa, fixed, mass, 100.0, rows, nrm, tgt, is_vf, a[0], a[1],
+                                   a[2], 0.0, a[3], a[4])
+                rb = lag_rows_sel(xa, fixed, mass, 100.0, rows, nrm, tgt, is_vf, b[0], b[1],
+                                  b[2], 0.0, b[3], b[4], ns)
+                assert ra == rb
+                for u, w in zip(a[:4], b[:4]):
+                    assert np.array_equal(u, w)
+                assert np.array_equal(a[4][:ra[1]], b[4][:rb[1]])
+                changed += int(ra[1] != ns0)
+            x = x + 0.5 * dx
+    assert changed > 0
 
 
 def test_start_targets_hold_only_the_flagged_rows():

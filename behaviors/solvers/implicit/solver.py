@@ -158,7 +158,7 @@ from lokigraph.errors import InputError
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
 from .contact import (contact_energy_al, extend_live, lag_contacts_al, lag_rows, lag_rows_live,
-                      row_energy, row_residuals, safety_project, start_targets_on,
+                      lag_rows_sel, row_energy, row_residuals, safety_project, start_targets_on,
                       update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, limit_energy, scatter_blocks
 from .linear import BlockJacobi, Identity, SmoothedAggregation
@@ -794,17 +794,27 @@ class ImplicitSolver(Behavior):
                                    buf[2][:m], buf[3][:m], kind == "vf", buf[5][:m],
                                    buf[6][:m], buf[7]))
 
-    def _lag_rows(self, ctx, d, x, live=False):
+    def _lag_rows(self, ctx, d, x, live=False, on_segment=False):
         """Lag coefficients and normal forces of the contact rows at x; returns
         (active rows, largest |change| of a normal force [N], largest normal force [N],
         largest |change| of a normal force over its row's stiffness [m]). With ``live`` only
         the rows live at x (``lag_rows_live``; the others are inactive at x, whatever their
-        coefficients) are lagged and listed for ``row_energy``; otherwise every row."""
+        coefficients) are lagged and listed for ``row_energy``; otherwise every row. With
+        ``on_segment`` (and ``live``, contact_reach 0) x lies on the segment that
+        ``_extend_live`` has just visited, and only the rows it listed are visited
+        (``lag_rows_sel``, the same results)."""
         h = ctx.dt
         m = ctx.model
         h2k = self.params.contact_stiffness / (h * h)
         act, dl, top, dgap = 0, 0.0, 0.0, 0.0
         for rows, nrm, tgt, mu, coef, kr, lam, lam_prev, is_vf, mark, sel, ns in d.rows["sets"]:
+            if live and on_segment and self.params.contact_reach == 0.0:
+                a, ns[0], dl1, top1, dgap1 = lag_rows_sel(
+                    x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf, coef, kr, lam,
+                    0.0, mark, sel, ns[0])
+                act += a
+                dl, top, dgap = max(dl, dl1), max(top, top1), max(dgap, dgap1)
+                continue
             if live:  # the changes of the live rows (the others have lam 0 before and after)
                 a, ns[0], dl1, top1, dgap1 = lag_rows_live(
                     x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf, coef, kr, lam,
@@ -943,10 +953,12 @@ class ImplicitSolver(Behavior):
             dx[fixed] = 0.0
             slope = float(np.vdot(g, dx))
             alpha = 1.0
+            on_segment = False  # xs ends on a segment _extend_live visited
             if P.line_search and slope < 0.0:
                 xtry = xs + dx
                 if d.rows.get("sets"):  # rows that the segment xs -> xs + dx may close
                     self._extend_live(ctx, d, xtry, xs)
+                    on_segment = True
                 slack = 1e-12 * abs(E0)  # rounding of E near convergence
                 for _ in range(30):
                     E1 = self._potential(ctx, d, xtry, 0, opts, xt, None)
@@ -977,7 +989,8 @@ class ImplicitSolver(Behavior):
                     lagged_ok = (float(np.abs(C["lam"] - C["lam_prev"]).max())
                                  <= P.contact_tolerance * top)
             if d.rows.get("sets"):
-                act, dl, top, dgap = self._lag_rows(ctx, d, xs, live=True)
+                act, dl, top, dgap = self._lag_rows(ctx, d, xs, live=True,
+                                                    on_segment=on_segment)
                 if top > 0.0 and dl > P.contact_tolerance * top and dgap > gap_tol:
                     lagged_ok = False
             if stop_v < P.newton_tolerance and lagged_ok:
