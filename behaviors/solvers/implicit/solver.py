@@ -57,7 +57,9 @@ iterate, nor anywhere on the line-search segment, whatever their closest-point c
 concave lower bound of the gap, ``_gap_bound``), hold no energy, so leaving them out is exact
 (positions bitwise unchanged); on graphs/bench/cloth_sphere_64.yaml at one substep the pipeline
 hands ~1.2 M rows per substep at impact (a detection margin of the substep's motion), of which
-~7,000 are live. This is a penalty method, not the
+~7,000 are live; after a line search only the rows ``extend_live`` listed for its segment
+are visited (``contact.lag_rows_sel``; measured in graphs/bench/implicit_speedups.py). This is
+a penalty method, not the
 complementarity solve of the Loki supplement eq. 5-7: contacts leave a small penetration (at
 rest ~ g h^2 / contact_stiffness) that the safety projection removes.
 
