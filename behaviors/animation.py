@@ -27,6 +27,42 @@ class _Anim:
     follow: _Follow | None = None
 
 
+def monotone_slopes(fr: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Tangents dy/dframe at the keys of a C1 monotone cubic Hermite curve (Fritsch & Carlson
+    1980, the weighted harmonic mean of scipy's PCHIP): zero at a key where the neighbouring
+    slopes differ in sign or one is zero, and zero at the first and last key (the pose holds
+    outside the keys, so the curve stays C1 there). ``fr``: strictly increasing frames (n,);
+    ``y``: values (n, k), one column per channel."""
+    y = np.asarray(y, dtype=np.float64)
+    m = np.zeros_like(y)
+    if len(fr) < 3:
+        return m
+    h = np.diff(fr)[:, None]
+    s = np.diff(y, axis=0) / h
+    s0, s1, h0, h1 = s[:-1], s[1:], h[:-1], h[1:]
+    w0, w1 = 2.0 * h1 + h0, h1 + 2.0 * h0
+    same = (s0 * s1) > 0.0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = (w0 + w1) / (w0 / s0 + w1 / s1)
+    m[1:-1] = np.where(same, d, 0.0)
+    return m
+
+
+def hermite_at(f: float, fr: np.ndarray, y: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """The cubic Hermite curve through keys (``fr``, ``y`` (n, k)) with tangents ``m`` at frame
+    ``f``; it holds the first / last key outside them (as ``np.interp``)."""
+    if f <= fr[0]:
+        return y[0].copy()
+    if f >= fr[-1]:
+        return y[-1].copy()
+    i = int(np.searchsorted(fr, f, side="right")) - 1  # fr[i] <= f < fr[i + 1]
+    h = float(fr[i + 1] - fr[i])
+    u = (f - float(fr[i])) / h
+    u2, u3 = u * u, u * u * u
+    return ((2 * u3 - 3 * u2 + 1) * y[i] + (u3 - 2 * u2 + u) * h * m[i]
+            + (-2 * u3 + 3 * u2) * y[i + 1] + (u3 - u2) * h * m[i + 1])
+
+
 def _sequence_frame(e, frame: int):
     """Geometry of frame ``frame`` of element ``e``'s mesh sequence (units and transform applied;
     a frame without a file follows ``geometry.hold``)."""
@@ -38,8 +74,12 @@ class KinematicAnimation(Behavior):
     """Moves kinematic elements to their animated pose at the end of each substep, and the
     pinned vertices that follow them (``Pins.follow``).
 
-    Rigid keys are interpolated linearly (translation and XYZ angles); mesh sequences linearly
-    between consecutive frames. A sequence must have a file for every frame the run needs
+    Rigid keys are interpolated per channel (translation, XYZ angles, pivot) linearly or, with
+    ``Kinematic.interpolation: smooth``, along a C1 monotone cubic Hermite curve
+    (:func:`monotone_slopes`); mesh sequences linearly between consecutive frames. The animated
+    vertices' velocity is the finite difference of two poses of that curve (end of substep minus
+    its start, over h: ``Simulation.step_substep``), so sub-frame positions and collider
+    velocities come from the same curve. A sequence must have a file for every frame the run needs
     (``frames.start`` .. ``frames.end``) unless ``geometry.hold`` says what a missing frame shows
     (``first``, ``last`` or ``loop``; see :mod:`lokigraph.sequence`); checked at bind (validate).
     Follow-pinned vertices become kinematic vertices (inverse mass 0) placed, every substep, by
@@ -63,6 +103,11 @@ class KinematicAnimation(Behavior):
                 keys = (np.array([x.frame for x in k.keys]),
                         np.array([x.translate for x in k.keys]),
                         np.array([x.rotate for x in k.keys]), np.array([x.pivot for x in k.keys]))
+                if k.interpolation == "smooth":  # one (n, 9) curve: translate, rotate, pivot
+                    y = np.concatenate([np.asarray(a, dtype=np.float64).reshape(len(keys[0]), 3)
+                                        for a in keys[1:]], axis=1)
+                    fr = keys[0].astype(np.float64)
+                    keys = ("smooth", fr, y, monotone_slopes(fr, y))
             seq = e.sequence
             if seq is None and e.spec is not None and e.spec.usd is not None:
                 seq = e.spec.usd  # a USD prim's time samples behave as a mesh sequence
@@ -166,7 +211,12 @@ class KinematicAnimation(Behavior):
         fs = float(round(f)) if abs(f - round(f)) < 1e-9 else f
         q = ctx.control.kinematic_q
         for sl, rest, keys, e in data.slices:
-            if keys is not None:
+            if keys is not None and isinstance(keys[0], str):  # smooth
+                _, fr, y, m = keys
+                c = hermite_at(f, fr, y, m)
+                R = rotation_matrix_xyz(c[3:6])
+                q[sl] = (rest - c[6:9]) @ R.T + c[6:9] + c[0:3]
+            elif keys is not None:
                 fr, tr, rot, piv = keys
                 t = np.array([np.interp(f, fr, tr[:, i]) for i in range(3)])
                 r = np.array([np.interp(f, fr, rot[:, i]) for i in range(3)])

@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from lokigraph.component import (Component, Paintable, VertexIndex, keyable_paintable,
                                  resolve_paintable)
@@ -54,7 +54,8 @@ class Dynamic(Component):
 
 
 class Key(BaseModel):
-    """A rigid keyframe of a kinematic element (linear interpolation between keys)."""
+    """A rigid keyframe of a kinematic element (interpolated as ``Kinematic.interpolation``
+    says: linear by default)."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     frame: float = Field(ge=-1e7, le=1e7, description="Frame number of the key.")
@@ -95,6 +96,18 @@ class Kinematic(Component):
         return k * meas
 
     keys: list[Key] = Field(default_factory=list, description="Rigid keyframes, sorted by frame.")
+    interpolation: Literal["linear", "smooth"] = Field(
+        "linear", description="How rigid keys are interpolated, per channel (translate x y z, "
+        "rotate x y z as XYZ Euler angles, pivot x y z); before the first key and after the last "
+        "the pose holds. linear (default): straight lines, so the velocity jumps at every key. "
+        "smooth: a C1 monotone cubic Hermite curve through the keys (Fritsch-Carlson tangents, "
+        "scipy's PCHIP interior slopes): the tangent at a key is the weighted harmonic mean of "
+        "its two neighbouring slopes, zero where the curve turns (a local extreme or a flat "
+        "neighbour, like Maya's auto tangents: no overshoot) and zero at the first and last key, "
+        "so the velocity is continuous everywhere, holds included. Unlike a keyed field's "
+        "'interp: smooth' (zero tangent at every key), a channel keyed at a constant rate keeps "
+        "it through its interior keys. The peak speed of a segment can exceed its key-to-key "
+        "rate: 1.5x between two zero tangents. Needs strictly increasing key frames.")
     stiffness: Paintable = Field(0.0, description="Compliant kinematics (Loki): stiffness per "
                                  "unit area [N/m^3] pulling a vertex to its animated position "
                                  "(rho / h^2 with the 1/h^2 folded in, so it does not change "
@@ -116,6 +129,17 @@ class Kinematic(Component):
         if frames != sorted(frames):
             raise ValueError("keys must be sorted by frame")
         return v
+
+    @model_validator(mode="after")
+    def _smooth_distinct(self):
+        if self.interpolation == "smooth":
+            frames = [k.frame for k in self.keys]
+            dup = next((a for a, b in zip(frames, frames[1:]) if b <= a), None)
+            if dup is not None:
+                raise ValueError(f"interpolation: smooth needs strictly increasing key frames "
+                                 f"(two keys at frame {dup:g}: a jump cannot be smooth; use "
+                                 f"linear or move one key)")
+        return self
 
 
 class Pins(Component):
