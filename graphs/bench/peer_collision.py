@@ -137,6 +137,39 @@ class ClothSphere:
 
 # ----------------------------------------------------------------------------------- runners
 
+# solver statistics kept per frame (sums over the frame's substeps; max_* the max)
+STAT_KEYS = ("contacts_vf", "contacts_ee", "contacts_tolerant", "iteration_detections",
+             "max_active_contacts", "max_final_active")
+_PROF: dict = {}  # --breakdown: CPU seconds and calls per timed function, reset every frame
+
+
+def install_breakdown():
+    """Wrap the collision functions of ``lokigraph.behaviors.collision.contacts`` (module
+    globals, so the calls inside the module go through the wrappers too) with CPU-time counters:
+    ``detect`` (``_detect_all``: broad phase + narrow filters, every call: the substep's
+    detection, the final rounds' and the CCD step's), ``project`` (``_project_contacts``),
+    ``ccd`` (``ccd_safe_step``, its detections included). Reported per frame as ``t_NAME`` [s]
+    and ``n_NAME`` (calls)."""
+    from lokigraph.behaviors.collision import contacts as C
+
+    def timed(name, fn):
+        def w(*a, **k):
+            c0 = time.process_time()
+            try:
+                return fn(*a, **k)
+            finally:
+                _PROF["t_" + name] = _PROF.get("t_" + name, 0.0) + time.process_time() - c0
+                _PROF["n_" + name] = _PROF.get("n_" + name, 0) + 1
+        return w
+
+    for name, attr in (("detect", "_detect_all"), ("project", "_project_contacts"),
+                       ("ccd", "ccd_safe_step")):
+        if hasattr(C, attr) and not hasattr(getattr(C, attr), "__wrapped_peer__"):
+            w = timed(name, getattr(C, attr))
+            w.__wrapped_peer__ = True
+            setattr(C, attr, w)
+
+
 class LokiRun:
     """One lokigraph setting, stepped frame by frame (its PenetrationCheck left out of the
     timed frame; the shared counter runs outside)."""
@@ -160,17 +193,24 @@ class LokiRun:
         self.solver = "nucleus"
 
     def step(self):
+        _PROF.clear()
         if self.threads:
             import numba
 
             keep = numba.get_num_threads()
             numba.set_num_threads(self.threads)
             try:
-                self.sim.step_frame()
+                self.stats = self.sim.step_frame()
             finally:
                 numba.set_num_threads(keep)
         else:
-            self.sim.step_frame()
+            self.stats = self.sim.step_frame()
+        self.stats = {k: v for k, v in self.stats.items() if k in STAT_KEYS}
+        self.stats.update(_PROF)
+        vb = self.sim.state.particle_qd[self.scene.ball_slice]  # the collider's velocity
+        vc = vb.mean(axis=0)  # ~ its centre's (the sphere mesh is symmetric)
+        self.stats.update(ball_speed=float(np.linalg.norm(vc)),
+                          ball_spin_speed=float(np.linalg.norm(vb - vc, axis=1).max()))
 
     def positions(self):
         q = self.sim.state.particle_q
@@ -267,7 +307,9 @@ def run_interleaved(runs, frames: int, log=print) -> list[dict]:
                 continue
             rec[i]["wall"].append(time.perf_counter() - w0)
             rec[i]["cpu"].append(time.process_time() - c0)
-            rec[i]["m"].append(r.scene.metrics(*r.positions()))
+            m = r.scene.metrics(*r.positions())
+            m.update(getattr(r, "stats", {}), cpu_ms=1e3 * rec[i]["cpu"][-1])
+            rec[i]["m"].append(m)
         log(f"[peer] frame {f + 1}/{frames}: " + ", ".join(
             f"{r.framework[:4]} {r.setting} {1e3 * rec[i]['wall'][-1]:.0f}ms"
             for i, r in enumerate(runs) if alive[i] and rec[i]["wall"]))
@@ -311,9 +353,46 @@ def table(rows) -> str:
         fin = "yes" if r["finite"] else ("NO" + (f" ({r['error']})" if r.get("error") else ""))
         lines.append(
             f"| {r['resolution']} | {r['framework']} | {r['setting']} | {fmt(r.get('cpu_ms'), '.0f')}"
-            f" | {fmt(r.get('wall_ms'), '.0f')} | {fmt(r.get('ratio'), '.2f')} | "
+            f" | {fmt(r.get('wall_ms'), '.0f')} | {fmt(r.get('ratio'), '.2f')}"
+            f"{'; ' + fmt(r['ratio_mean'], '.2f') if r.get('ratio_mean') is not None else ''} | "
             f"{fmt(100 * r['max_strain'], '.1f')} | {r['max_inside']} | {r['max_pairs']} | "
             f"{r['frames_with_pairs']}/{r['frames']} | {fin} |")
+    return "\n".join(lines)
+
+
+def per_frame_table(rows) -> str:
+    """One line per frame: per run CPU ms, max strain %, intersecting pairs, contacts (vf + ee
+    rows summed over the substeps), and with --breakdown the detect / project / ccd CPU ms and
+    the number of detections."""
+    lines = []
+    cols = ["frame"]
+    for r in rows:
+        tag = r["setting"]
+        cols += [f"{tag} CPU ms", "strain %", "pairs", "contacts", "final active",
+                 "ball v (spin) m/s"]
+        if any("t_detect" in v for v in r["per_frame"]):
+            cols += ["detect ms (calls)", "project ms", "ccd ms"]
+    lines.append("| " + " | ".join(cols) + " |")
+    lines.append("|" + "---|" * len(cols))
+    n = max(len(r["per_frame"]) for r in rows)
+    for f in range(n):
+        cells = [str(f + 1)]
+        for r in rows:
+            pf = r["per_frame"]
+            if f >= len(pf):
+                cells += ["-"] * 6
+                continue
+            v = pf[f]
+            cells += [f"{v.get('cpu_ms', float('nan')):.0f}", f"{100 * v['strain']:.1f}",
+                      str(v["pairs"]),
+                      f"{v.get('contacts_vf', 0) + v.get('contacts_ee', 0):.0f}",
+                      f"{v.get('max_final_active', 0):.0f}",
+                      f"{v.get('ball_speed', 0):.2f} ({v.get('ball_spin_speed', 0):.2f})"]
+            if any("t_detect" in u for u in pf):
+                cells += [f"{1e3 * v.get('t_detect', 0):.0f} ({v.get('n_detect', 0)})",
+                          f"{1e3 * v.get('t_project', 0):.0f}",
+                          f"{1e3 * v.get('t_ccd', 0):.0f}"]
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -334,6 +413,12 @@ def main(argv=None):
                     help="Newton soft_contact_margin [m] (default: Newton's)")
     ap.add_argument("--moving", action="store_true",
                     help="lokigraph only: moving-collider scene vs static at 128x128")
+    ap.add_argument("--moving-scenes", nargs="+", default=None, metavar="YAML",
+                    help="with --moving: the moving scenes to run against the static one "
+                         f"(default {MOVING.relative_to(ROOT)})")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="time the collision functions per frame (detect, project, ccd; "
+                         "see install_breakdown) and print a per-frame table")
     ap.add_argument("--out", default="bench_out/peer", help="output folder")
     args = ap.parse_args(argv)
     parse = lambda s: [tuple(int(v) for v in x.split("x")) for x in s.split(",")]  # noqa: E731
@@ -361,12 +446,28 @@ def main(argv=None):
             print(f"[peer] {skipped}", flush=True)
 
     all_rows = []
+    if args.breakdown:
+        install_breakdown()
     if args.moving:
-        scenes = [ClothSphere(SCENES[128]), ClothSphere(MOVING)]
+        moving = [Path(p).resolve() for p in args.moving_scenes] if args.moving_scenes \
+            else [MOVING]
+        scenes = [ClothSphere(SCENES[128])] + [ClothSphere(p) for p in moving]
         frames = args.frames or scenes[0].frames
-        runs = [LokiRun(sc, *st[:2], label=" moving" if sc.path == MOVING else " static",
+        runs = [LokiRun(sc, *st[:2], label=(" static" if sc.path == SCENES[128] else
+                                            " moving" if sc.path == MOVING else
+                                            f" {sc.path.stem}"),
                         threads=st[2] if len(st) > 2 else None) for st in loki for sc in scenes]
-        all_rows += run_interleaved(runs, frames)
+        rows = run_interleaved(runs, frames)
+        for r in rows:  # CPU per frame against the static scene at the same setting
+            base = next((b for b in rows if b["setting"].split(" ")[0] ==
+                         r["setting"].split(" ")[0] and b["scene"] == SCENES[128].name), None)
+            if base and base.get("cpu_ms") and r.get("cpu_ms"):
+                r["ratio"] = r["cpu_ms"] / base["cpu_ms"]
+                r["ratio_mean"] = (np.mean([v["cpu_ms"] for v in r["per_frame"][1:]]) /
+                                   np.mean([v["cpu_ms"] for v in base["per_frame"][1:]]))
+        all_rows += rows
+        print()
+        print(per_frame_table(rows))
     else:
         for n in args.sizes:
             sc = ClothSphere(SCENES[n])
@@ -392,6 +493,8 @@ def main(argv=None):
             all_rows += rows
 
     md = table(all_rows)
+    if args.moving:
+        md = md.replace("CPU / Style3D best", "CPU / static: median; mean")
     print()
     print(f"Versions: {versions}")
     print(md)
