@@ -139,7 +139,8 @@ class ClothSphere:
 
 # solver statistics kept per frame (sums over the frame's substeps; max_* the max)
 STAT_KEYS = ("contacts_vf", "contacts_ee", "contacts_tolerant", "iteration_detections",
-             "max_active_contacts", "max_final_active")
+             "max_active_contacts", "max_final_active", "ccd_detections", "ccd_hits",
+             "ccd_zones", "ccd_zone_vertices", "ccd_unresolved")
 _PROF: dict = {}  # --breakdown: CPU seconds and calls per timed function, reset every frame
 
 
@@ -371,7 +372,7 @@ def per_frame_table(rows) -> str:
         cols += [f"{tag} CPU ms", "strain %", "pairs", "contacts", "final active",
                  "ball v (spin) m/s"]
         if any("t_detect" in v for v in r["per_frame"]):
-            cols += ["detect ms (calls)", "project ms", "ccd ms"]
+            cols += ["detect ms (calls)", "project ms", "ccd ms", "ccd hits / zone verts"]
     lines.append("| " + " | ".join(cols) + " |")
     lines.append("|" + "---|" * len(cols))
     n = max(len(r["per_frame"]) for r in rows)
@@ -391,7 +392,8 @@ def per_frame_table(rows) -> str:
             if any("t_detect" in u for u in pf):
                 cells += [f"{1e3 * v.get('t_detect', 0):.0f} ({v.get('n_detect', 0)})",
                           f"{1e3 * v.get('t_project', 0):.0f}",
-                          f"{1e3 * v.get('t_ccd', 0):.0f}"]
+                          f"{1e3 * v.get('t_ccd', 0):.0f}",
+                          f"{v.get('ccd_hits', 0):.0f} / {v.get('ccd_zone_vertices', 0):.0f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
