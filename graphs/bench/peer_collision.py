@@ -14,9 +14,15 @@ Without Newton the Newton rows are skipped with the reason; the lokigraph rows a
 Scenes: ``graphs/bench/cloth_sphere_64.yaml`` and ``cloth_sphere_128.yaml`` (1 m cloth, 0.15
 kg/m^2, inextensible, thickness 2 mm, dropped from y = 0.6 onto a static sphere of radius 0.3,
 self-collision on, 24 fps, 23 frames). ``--moving``: ``cloth_sphere_moving_128.yaml``, the same
-128 x 128 cloth on a sphere that, once the cloth has landed (frame 6), moves along x at 2 m/s back
-and forth and spins about y (surface speed about 2 m/s): lokigraph only, against the static scene
-at the same resolution.
+128 x 128 cloth on a sphere that, once the cloth has landed (frame 6), moves back and forth along
+x and spins about y on smooth keys (``Kinematic.interpolation: smooth``; peak speed 2 m/s, surface
+speed of the spin at most 1.97 m/s): lokigraph only, against the static scene at the same
+resolution, with the CPU ratio to it (median of frames 2..N; mean) and a per-frame table (CPU,
+strain, pairs, contact rows, collider and cloth speeds). ``--moving-scenes A.yaml B.yaml`` runs
+other moving variants in the same interleaved run; ``--breakdown`` adds the CPU of the collision
+detection, the contact projection and the CCD safe step per frame (``install_breakdown``)::
+
+    .venv/bin/python graphs/bench/peer_collision.py --moving --loki 2x15 --breakdown
 
 All settings of both frameworks are created first and then stepped one frame each in turn
 (frame-level interleaving), so machine load hits every setting alike. Per setting the table gives:
@@ -208,7 +214,19 @@ class LokiRun:
             self.stats = self.sim.step_frame()
         self.stats = {k: v for k, v in self.stats.items() if k in STAT_KEYS}
         self.stats.update(_PROF)
-        vb = self.sim.state.particle_qd[self.scene.ball_slice]  # the collider's velocity
+        st = self.sim.state
+        vcl = np.linalg.norm(st.particle_qd[self.scene.cloth_slice], axis=1)
+        self.stats.update(cloth_speed_mean=float(vcl.mean()),
+                          cloth_speed_p95=float(np.percentile(vcl, 95)))
+        c = st.fields.get("contacts")  # rows of the frame's last detection
+        if c is not None:
+            b0, b1 = self.scene.ball_slice.start, self.scene.ball_slice.stop
+            for kind in ("vf", "ee"):
+                rows = getattr(c, kind)
+                ball = ((rows >= b0) & (rows < b1)).any(axis=1)
+                self.stats[f"last_{kind}_self"] = int(np.count_nonzero(~ball))
+                self.stats[f"last_{kind}_ball"] = int(np.count_nonzero(ball))
+        vb = st.particle_qd[self.scene.ball_slice]  # the collider's velocity
         vc = vb.mean(axis=0)  # ~ its centre's (the sphere mesh is symmetric)
         self.stats.update(ball_speed=float(np.linalg.norm(vc)),
                           ball_spin_speed=float(np.linalg.norm(vb - vc, axis=1).max()))
@@ -363,14 +381,17 @@ def table(rows) -> str:
 
 def per_frame_table(rows) -> str:
     """One line per frame: per run CPU ms, max strain %, intersecting pairs, contacts (vf + ee
-    rows summed over the substeps), and with --breakdown the detect / project / ccd CPU ms and
-    the number of detections."""
+    rows of the substeps' detections, summed), the largest final-round active count, the
+    collider's centre speed (and its largest surface speed from the spin), the cloth's mean and
+    95th-percentile vertex speed at the frame's end, the rows of the frame's last detection
+    between cloth primitives / with the collider; with --breakdown the detect / project / ccd
+    CPU ms, the number of detections and the CCD hits / impact-zone vertices."""
     lines = []
     cols = ["frame"]
     for r in rows:
         tag = r["setting"]
         cols += [f"{tag} CPU ms", "strain %", "pairs", "contacts", "final active",
-                 "ball v (spin) m/s"]
+                 "ball v (spin) m/s", "cloth v mean / p95", "last rows self / ball"]
         if any("t_detect" in v for v in r["per_frame"]):
             cols += ["detect ms (calls)", "project ms", "ccd ms", "ccd hits / zone verts"]
     lines.append("| " + " | ".join(cols) + " |")
@@ -381,14 +402,17 @@ def per_frame_table(rows) -> str:
         for r in rows:
             pf = r["per_frame"]
             if f >= len(pf):
-                cells += ["-"] * 6
+                cells += ["-"] * 8
                 continue
             v = pf[f]
             cells += [f"{v.get('cpu_ms', float('nan')):.0f}", f"{100 * v['strain']:.1f}",
                       str(v["pairs"]),
                       f"{v.get('contacts_vf', 0) + v.get('contacts_ee', 0):.0f}",
                       f"{v.get('max_final_active', 0):.0f}",
-                      f"{v.get('ball_speed', 0):.2f} ({v.get('ball_spin_speed', 0):.2f})"]
+                      f"{v.get('ball_speed', 0):.2f} ({v.get('ball_spin_speed', 0):.2f})",
+                      f"{v.get('cloth_speed_mean', 0):.2f} / {v.get('cloth_speed_p95', 0):.2f}",
+                      f"{v.get('last_vf_self', 0) + v.get('last_ee_self', 0)} / "
+                      f"{v.get('last_vf_ball', 0) + v.get('last_ee_ball', 0)}"]
             if any("t_detect" in u for u in pf):
                 cells += [f"{1e3 * v.get('t_detect', 0):.0f} ({v.get('n_detect', 0)})",
                           f"{1e3 * v.get('t_project', 0):.0f}",
