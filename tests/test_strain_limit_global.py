@@ -2,20 +2,28 @@
 projection): a cloth draped over a sphere saturates its strain limit over a region, which the
 Gauss-Seidel limit cannot relax; the global step holds it, with the sphere's contacts kept."""
 
+from pathlib import Path
+
 import numpy as np
+import pytest
+import yaml
 
 from lokigraph.api import compile_file
 from lokigraph.behaviors.topology import triangle_edges
 from lokigraph.run import Simulation
 
+EX = Path(__file__).resolve().parent.parent / "graphs" / "examples"
 
-def _drape(scene_file, passes, contacts="filter", frames=8, res=32, eps=0.01):
+
+def _drape(scene_file, passes, contacts="filter", frames=8, res=32, eps=0.01, near=0.0,
+           pivots=0):
     p = scene_file(f"""
     lokigraph: 1
     frames: {{start: 1, end: {frames + 1}, fps: 24}}
     substeps: 2
     graph_overrides: {{strain_limit: {{inextensible_max_strain: {eps}, global_passes: {passes},
-                                       global_contacts: {contacts}}}}}
+                                       global_contacts: {contacts}, global_near: {near},
+                                       global_pivots: {pivots}}}}}
     elements:
       - name: cloth
         geometry:
@@ -33,7 +41,7 @@ def _drape(scene_file, passes, contacts="filter", frames=8, res=32, eps=0.01):
       - name: contact
         components:
           CollisionGroup: {{members: [cloth, ball], methods: [vertex_face, edge_edge, self]}}
-    """, f"drape_{passes}_{contacts}.yaml")
+    """, f"drape_{passes}_{contacts}_{pivots}.yaml")
     c = compile_file(p)
     sim = Simulation(c)
     cl, b = c.scene.element("cloth"), c.scene.element("ball")
@@ -70,15 +78,67 @@ def test_global_step_holds_a_saturated_drape(scene_file):
     assert (d > 0.0).all() and (pen == 0).all()
 
 
+def _drop(tmp_path, frames, **sl):
+    """cloth_on_sphere (64 x 64) with strain_limit overrides ``sl``: worst edge strain and the
+    smallest distance of a cloth vertex from the ball's centre minus the ball's inradius [m]
+    per frame, and the penetration counts."""
+    s = yaml.safe_load((EX / "cloth_on_sphere.yaml").read_text())
+    s["graph_overrides"] = {"strain_limit": sl}
+    s["output"] = {"dir": str(tmp_path / "out")}
+    f = tmp_path / f"drop_{len(list(tmp_path.glob('*.yaml')))}.yaml"
+    f.write_text(yaml.safe_dump(s))
+    c = compile_file(f)
+    sim = Simulation(c)
+    cl, b = c.scene.element("cloth"), c.scene.element("ball")
+    E = triangle_edges(cl.geometry.triangles)
+    X = cl.geometry.points
+    L0 = np.linalg.norm(X[E[:, 1]] - X[E[:, 0]], axis=1)
+    strain, depth, pen = [], [], []
+    for _ in range(frames):
+        st = sim.step_frame()
+        q = sim.state.particle_q
+        qc, qb = q[cl.vertex_slice], q[b.vertex_slice]
+        strain.append((np.linalg.norm(qc[E[:, 1]] - qc[E[:, 0]], axis=1) / L0 - 1).max())
+        T = qb[b.geometry.triangles]
+        nrm = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
+        inr = np.abs(np.einsum("ij,ij->i", nrm, T[:, 0]) / np.linalg.norm(nrm, axis=1)).min()
+        depth.append(np.linalg.norm(qc - qb.mean(axis=0), axis=1).min() - inr)
+        pen.append(int(st.get("penetrations", 0) or 0))
+    return np.array(strain), np.array(depth), np.array(pen)
+
+
+@pytest.mark.slow
+def test_pivoted_rows_step_holds_the_64_drop(tmp_path):
+    """The 64 x 64 drop at a 1 % limit, 10 frames (the cloth lands at frame 6-7): the equality
+    step with the tangent-plane filter stalls where the cloth is stretched over the ball (it
+    may not lift off) and leaves 2.6 % at frame 10 (graphs/bench/cloth_strain.py, 12
+    frames: 2.62 %); the contacts as one-sided rows and the inequalities solved by pivoting
+    (global_contacts 'rows', global_near 0.02, global_pivots 10) converge in every substep
+    (measured 1.08-1.10 % at every frame's end, the limit plus the tolerance 1e-3 of the
+    limit), no cloth vertex inside the ball, no penetration."""
+    base = dict(inextensible_max_strain=0.01, global_passes=20)
+    s0, _, _ = _drop(tmp_path, 10, **base)
+    assert s0.max() > 0.015
+    s, d, pen = _drop(tmp_path, 10, **base, global_contacts="rows", global_near=0.02,
+                      global_pivots=10)
+    assert s.max() < 0.0115
+    assert (d > 0.0).all() and (pen == 0).all()
+
+
 if __name__ == "__main__":
     import sys
     import tempfile
+    import time
     from pathlib import Path
 
     from conftest import write_scene
 
     with tempfile.TemporaryDirectory() as tmp:
-        for args in [(0,), (20, "filter"), (20, "rows"), (20, "none")]:
+        for args, kw in [((0,), {}), ((20, "filter"), {}), ((20, "rows"), {}),
+                         ((20, "none"), {}), ((20, "rows"), dict(near=0.02, pivots=10)),
+                         ((20, "filter"), dict(near=0.02, pivots=10))]:
+            t = time.process_time()
             s, d, pen = _drape(lambda t, n: write_scene(Path(tmp), t, n), *args,
-                               frames=int(sys.argv[1]), res=int(sys.argv[2]))
-            print(args, np.round(100 * s, 2), np.round(1000 * d, 2), pen)
+                               frames=int(sys.argv[1]), res=int(sys.argv[2]), **kw)
+            print(args, kw, np.round(100 * s, 2), np.round(1000 * d, 2), pen,
+                  f"{time.process_time() - t:.1f} s CPU")

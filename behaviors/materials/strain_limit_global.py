@@ -141,6 +141,24 @@ def contact_filter(w, c_v, c_cf, c_n, c_c, nc, best, out):
 
 
 @njit(cache=True)
+def contact_normals(w, c_v, c_cf, c_n, c_c, nc, best, out):
+    """Per vertex the outward normal (from the collider to the vertex: the row's normal times
+    the sign of the vertex's coefficient) of its most closed contact row (smallest C, held in
+    ``best``), as ``contact_filter`` chooses it; ``best`` stays inf for vertices without one.
+    Returns nothing."""
+    for i in range(w.shape[0]):
+        best[i] = np.inf
+    for r in range(nc):
+        for q in range(4):
+            v = c_v[r, q]
+            if abs(c_cf[r, q]) > 0.05 and w[v] > 0.0 and c_c[r] < best[v]:
+                best[v] = c_c[r]
+                s = 1.0 if c_cf[r, q] > 0.0 else -1.0
+                for a in range(3):
+                    out[v, a] = s * c_n[r, a]
+
+
+@njit(cache=True)
 def _coo(w, edges, e_idx, e_n, ne, c_v, c_cf, c_n, nc, row0, ri, ci, vi):
     """COO entries of J (rows: the ne edge rows, then the nc contact rows from ``row0``; columns:
     3 per vertex), leaving out vertices with w = 0. Returns the entry count."""
@@ -185,6 +203,7 @@ class GlobalStrainStep:
         self.dmax = 0.5 * float(limit[sel].min()) if len(sel) else 0.0
         self.w3 = None
         self._blk = None
+        self._nrm = None
         self.filter_min = 0.1
         self.stats = {"passes": 0, "factorisations": 0, "rows": 0, "contact_rows": 0}
 
@@ -249,6 +268,53 @@ class GlobalStrainStep:
         A = A + sp.diags(alpha * A.diagonal() + 1e-300)
         return spla.splu(A.tocsc(), permc_spec="COLAMD"), keep
 
+    def _pivot(self, J, C, lim, alpha, Wb, iters, tol):
+        """The rows' inequalities as a linear complementarity problem: dlam >= 0, C - A dlam
+        <= 0, complementary (A = J W J^T over the candidate rows, regularised by alpha
+        diag(A) on the active ones), by block principal pivoting (Judice & Pires 1994): solve
+        the active rows (at first those with C > 0), then swap every active row whose
+        multiplier has the wrong sign out and every inactive row the step carries more than
+        ``tol / 2`` of its ``lim`` over in, up to ``iters`` times; the active set with the
+        fewest such rows is used. Returns (SuperLU of its rows, their indices into J, their
+        J, their dlam)."""
+        if Wb is not None:
+            JW = (J @ Wb).tocsr()
+            dg = np.asarray(JW.multiply(J).sum(axis=1)).ravel()
+            d0 = np.asarray(J.multiply(J).multiply(self.w3[None, :]).sum(axis=1)).ravel()
+            ok = np.flatnonzero(dg > self.filter_min * d0)
+            if len(ok) < len(dg):
+                J, JW, C, lim = J[ok], JW[ok], C[ok], lim[ok]
+        else:
+            ok = None
+            JW = J.multiply(self.w3[None, :]).tocsr()
+        A = (JW @ J.T).tocsr()
+        dg = A.diagonal()
+        R = (A + sp.diags(alpha * dg + 1e-300)).tocsr()
+        F = C > 0.0
+        gap = 0.5 * tol * lim
+        best = None
+        for it in range(iters + 1):
+            idx = np.flatnonzero(F)
+            lu = spla.splu(R[idx][:, idx].tocsc(), permc_spec="COLAMD")
+            dl = lu.solve(C[idx])
+            dlam = np.zeros(len(C))
+            dlam[idx] = dl
+            Cn = C - A @ dlam
+            out = F & (dlam < 0.0)
+            inn = ~F & (Cn > gap)
+            nbad = int(out.sum() + inn.sum())
+            if best is None or nbad < best[0]:
+                best = (nbad, lu, idx, dl)
+            self.stats["pivots"] = self.stats.get("pivots", 0) + 1
+            if nbad == 0 or it == iters:
+                break
+            F[out] = False
+            F[inn] = True
+        nbad, lu, idx, dl = best
+        self.stats["unpivoted"] = max(self.stats.get("unpivoted", 0), nbad)
+        rows = idx if ok is None else ok[idx]
+        return lu, rows, J[idx], dl
+
     def _move(self, p, w, tol, worst, dx, guard):
         """p -= dx, the step capped at ``dmax`` per vertex and, with ``guard``, halved (up to 4
         times) while the worst edge gets worse."""
@@ -264,7 +330,8 @@ class GlobalStrainStep:
                 dx *= 0.5
                 p[:] = p0 - dx
 
-    def run(self, p, w, contacts, passes, tol, near, alpha, with_contacts="filter"):
+    def run(self, p, w, contacts, passes, tol, near, alpha, with_contacts="filter",
+            pivots=0):
         """Up to ``passes`` Newton steps on p (in place) until every edge is within
         (1 + tol) limit. Returns the worst relative excess left.
 
@@ -319,21 +386,58 @@ class GlobalStrainStep:
                     continue
             ne, _, _ = edge_rows(p, w, self.edges, self.limit, self.sel, near, tol,
                                  self.e_idx, self.e_c, self.e_n)
-            if filt or not kinds:
+            if (filt or not kinds) and pivots:
                 J = self._jacobian(w, self.e_idx, self.e_n, ne, *_NO_CONTACTS)
-                lu, keep = self._factor(J, ne, alpha, Wb)
-                frozen = self.e_idx[:ne] if keep is None else self.e_idx[keep]
-                frozen = frozen.copy()
+                lu, rows, J, dlam = self._pivot(J, self.e_c[:ne], self.limit[self.e_idx[:ne]],
+                                                alpha, Wb, pivots, tol)
+                frozen = self.e_idx[rows].copy()
                 self._mark[:] = False
                 self._mark[frozen] = True
                 self.f_idx = np.zeros(len(frozen), np.int64)
                 self.f_c = np.zeros(len(frozen))
                 self.f_n = np.zeros((len(frozen), 3))
-                C = self.e_c[:ne] if keep is None else self.e_c[keep]
                 JW = (J @ Wb) if Wb is not None else J.multiply(self.w3[None, :])
+                dx = JW.T @ dlam
+            elif filt or not kinds:
+                J = self._jacobian(w, self.e_idx, self.e_n, ne, *_NO_CONTACTS)
+                rows = np.arange(ne)
+                lu, keep = self._factor(J, ne, alpha, Wb)
                 if keep is not None:
-                    JW = JW.tocsr()[keep]
-                dx = JW.T @ lu.solve(C)
+                    rows, J = rows[keep], J[keep]
+                dlam = lu.solve(self.e_c[rows])
+                frozen = self.e_idx[rows].copy()
+                self._mark[:] = False
+                self._mark[frozen] = True
+                self.f_idx = np.zeros(len(frozen), np.int64)
+                self.f_c = np.zeros(len(frozen))
+                self.f_n = np.zeros((len(frozen), 3))
+                JW = (J @ Wb) if Wb is not None else J.multiply(self.w3[None, :])
+                dx = JW.T @ dlam
+            elif pivots:  # rows, as one LCP with the edges, factorised every pass
+                # one row per vertex in contact with a collider: its most closed contact's
+                # outward normal n, -(C + n . u) <= 0 with a multiplier >= 0 (pushing)
+                cc, cv, ccf, cn = self._contact_set(p, w, contacts, kinds, 1.0, True)
+                if self._nrm is None or len(self._nrm) != len(w):
+                    self._nrm = np.zeros((len(w), 3))
+                    self._vbest = np.zeros(len(w))
+                nrm = self._nrm
+                contact_normals(w, cv, ccf, cn, cc, len(cc), self._vbest, nrm)
+                vv = np.flatnonzero(self._vbest < np.inf)
+                nc = len(vv)
+                cv = np.zeros((nc, 4), np.int64)
+                cv[:, 0] = vv
+                ccf = np.zeros((nc, 4))
+                ccf[:, 0] = -1.0
+                J = self._jacobian(w, self.e_idx, self.e_n, ne, cv, ccf,
+                                   np.ascontiguousarray(nrm[vv]), nc)
+                C = np.concatenate([self.e_c[:ne], -self._vbest[vv]])
+                lim = np.concatenate([self.limit[self.e_idx[:ne]], np.full(nc, 2.0 * self.dmax)])
+                lu, rows, J, dlam = self._pivot(J, C, lim, alpha, None, pivots, tol)
+                dx = J.multiply(self.w3[None, :]).T @ dlam
+                lu = None
+                for k in kinds:
+                    self._contacts(contacts, k)[4][:] = False
+                self.stats["contact_rows"] = max(self.stats["contact_rows"], nc)
             else:  # rows: the violated contacts join the system, factorised every pass
                 cc, cv, ccf, cn = self._contact_set(p, w, contacts, kinds, 0.0, False)
                 nc = len(cc)
