@@ -136,7 +136,10 @@ class StrainLimitParams(ConstraintParams):
         "the violated contacts (vertex-face, edge-edge, self included) are rows of the system "
         "(inequality: pulling rows dropped), factorised every pass: on a 40 x 40 drape at "
         "0.01 (9 frames) 1.06 % against the filter's 1.07 % at twice the step's CPU (both "
-        "factorised every pass). 'none': edges only, the contacts left to the CCD safe step, "
+        "factorised every pass); with global_pivots > 0 instead one one-sided row per vertex "
+        "within twice its target distance of a collider, along its most closed contact's "
+        "outward normal (self contacts left to the CCD safe step), solved with the edges as "
+        "one complementarity problem. 'none': edges only, the contacts left to the CCD safe step, "
         "whose contact rounds then stretch the cloth again (32 x 32 drape: 2.6 % against "
         "1.1 %).")
     global_pivots: int = Field(
@@ -156,7 +159,17 @@ class StrainLimitParams(ConstraintParams):
         "step's start state); where the filter stalls, 0.000 % with no contact constraint "
         "(but 3.2 mm into the sphere) and 0.11 % with the contacts one-sided. At that substep (excess 5.37 % at the step's start) the filter leaves 1.41 %, "
         "the filter with pivoting (global_near 0.02, 5) 1.15 %, 'rows' with pivoting "
-        "(global_near 0.02, 10) 0.07 % (16 passes); 'rows' without pivoting 0.66 %.")
+        "(global_near 0.02, 10) 0.07 % (16 passes); 'rows' without pivoting 0.66 %. Worst "
+        "frame over 24 frames (graphs/bench/cloth_strain.py, one interleaved run, CPU per "
+        "frame, 2 cores shared): cloth_on_sphere at the defaults 6.64 % (629 ms), global "
+        "step 'filter' at 0.01 2.62 % (1444 ms), 'rows' + pivots (global_passes 20, "
+        "global_near 0.02, global_pivots 10) at 0.01 1.10 % (3813 ms, 6.1x the defaults) and "
+        "at 0.015 1.60 % (2638 ms, 4.2x); skirt_walk 5.00 % (88 ms) / 1.08 % / 1.08 % / "
+        "1.54 % (89-91 ms: the Gauss-Seidel limit holds there, the step has nothing to "
+        "do). The 128 x 128 drop (graphs/bench/cloth_sphere_128.yaml, 12 frames, warm-started "
+        "pivoting) at 0.01: 15.90 % (defaults, frame 9, last 13.76 %, 6.6 s CPU per frame in "
+        "contact) -> 8.20 % (frame 8, last 2.43 %, 72.6 s, 11x): there 20 passes do not "
+        "converge in the first contact frames. Not a default: the CPU.")
     global_alpha: float = Field(
         1e-3, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
         "step's system, relative to its diagonal [-]. An inextensible triangle mesh has about "

@@ -24,7 +24,16 @@ vertex-face / edge-edge contacts (``n . (x_v - sum b_k x_k) - target``, ``n . (x
 - target``, as ``project_vf`` / ``project_ee`` evaluate them) as rows of the same system,
 inequality by dropping rows whose multiplier pulls, factorised every pass. Friction is not part
 of the step. A step moves no vertex farther than half the shortest edge limit, and with contacts
-it is halved (up to 4 times) while the worst edge gets worse. The sparse system is factorised by
+it is halved (up to 4 times) while the worst edge gets worse.
+
+With ``pivots`` > 0 every factorised pass solves the inequalities as a linear complementarity
+problem (multipliers >= 0, no candidate row carried over its limit, complementary; block
+principal pivoting, warm-started from the last pass's active set), and with 'rows' the
+contacts are one row per vertex in contact with a collider, ``-(C + n . dx) <= 0`` along the
+outward normal of its most closed contact: the cloth may lift off, not enter. This is what
+makes the step converge on a cloth stretched over a sphere: the filter's tangent plane holds a
+contacting vertex in both directions, and the equality step there stalls at ~1 % excess
+(``global_pivots`` in strain_limit.py has the figures). The sparse system is factorised by
 SuperLU (scipy.sparse.linalg.splu, COLAMD); J is assembled in numba kernels, the products by
 scipy.sparse.
 """
@@ -268,11 +277,11 @@ class GlobalStrainStep:
         A = A + sp.diags(alpha * A.diagonal() + 1e-300)
         return spla.splu(A.tocsc(), permc_spec="COLAMD"), keep
 
-    def _pivot(self, J, C, lim, alpha, Wb, iters, tol):
+    def _pivot(self, J, C, lim, alpha, Wb, iters, tol, F0=None):
         """The rows' inequalities as a linear complementarity problem: dlam >= 0, C - A dlam
         <= 0, complementary (A = J W J^T over the candidate rows, regularised by alpha
         diag(A) on the active ones), by block principal pivoting (Judice & Pires 1994): solve
-        the active rows (at first those with C > 0), then swap every active row whose
+        the active rows (at first those with C > 0 or in ``F0``), then swap every active row whose
         multiplier has the wrong sign out and every inactive row the step carries more than
         ``tol / 2`` of its ``lim`` over in, up to ``iters`` times; the active set with the
         fewest such rows is used. Returns (SuperLU of its rows, their indices into J, their
@@ -291,6 +300,8 @@ class GlobalStrainStep:
         dg = A.diagonal()
         R = (A + sp.diags(alpha * dg + 1e-300)).tocsr()
         F = C > 0.0
+        if F0 is not None:  # warm start: the last pass's active set
+            F |= F0 if ok is None else F0[ok]
         gap = 0.5 * tol * lim
         best = None
         for it in range(iters + 1):
@@ -342,10 +353,14 @@ class GlobalStrainStep:
         limit or a pass fails to halve the worst excess. 'rows': the violated contacts are rows
         of the system (inequality: rows whose multiplier pulls are dropped and the system solved
         again), factorised every pass.
-        'none': edges only."""
+        'none': edges only. With ``pivots`` > 0 the factorised passes are LCPs (``_pivot``):
+        'filter' over the edges (within ``near`` of their limit), 'rows' over the edges and one
+        one-sided row per vertex in contact with a collider, factorised every pass."""
         if self.w3 is None or len(self.w3) != 3 * len(w):
             self.w3 = np.repeat(w, 3)
             self._mark = np.zeros(len(self.edges), np.bool_)
+            self._act = np.zeros(len(self.edges) + len(w), np.bool_)
+        self._act[:] = False
         filt = with_contacts == "filter"
         kinds = ()
         if contacts is not None and with_contacts in ("rows", "filter"):
@@ -432,7 +447,11 @@ class GlobalStrainStep:
                                    np.ascontiguousarray(nrm[vv]), nc)
                 C = np.concatenate([self.e_c[:ne], -self._vbest[vv]])
                 lim = np.concatenate([self.limit[self.e_idx[:ne]], np.full(nc, 2.0 * self.dmax)])
-                lu, rows, J, dlam = self._pivot(J, C, lim, alpha, None, pivots, tol)
+                ids = np.concatenate([self.e_idx[:ne], len(self.edges) + vv])
+                lu, rows, J, dlam = self._pivot(J, C, lim, alpha, None, pivots, tol,
+                                                self._act[ids])
+                self._act[:] = False
+                self._act[ids[rows]] = True
                 dx = J.multiply(self.w3[None, :]).T @ dlam
                 lu = None
                 for k in kinds:
