@@ -237,3 +237,59 @@ def test_non_finite_boxes_fall_back_to_the_trees():
     tree = bp.build_bvh(lo_e, hi_e)
     ref = bp.query_self(tree, E, st=bp.spacetime_boxes(tree, X0, E, X1, 0.02))
     assert as_set(bp.column_query_self(lo_e, hi_e, E, st=st)) == as_set(ref)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_sort_pairs_is_lexicographic(seed):
+    """``sort_pairs``: rows sorted by (first, second), or by given ranks, as numpy's lexsort;
+    the same set of rows; with and without a buffer."""
+    rng = np.random.default_rng(seed)
+    na, nb = 300, 500
+    pairs = np.stack([rng.integers(0, na, 5000), rng.integers(0, nb, 5000)], 1).astype(np.int64)
+    ref = pairs[np.lexsort((pairs[:, 1], pairs[:, 0]))]
+    buf = bp.PairBuffer()
+    p1 = pairs.copy()
+    assert np.array_equal(bp.sort_pairs(p1, na), ref)
+    p2 = buf.reserve(len(pairs))
+    p2[:] = pairs
+    assert np.array_equal(bp.sort_pairs(p2, na, buf), ref)
+    ra, rb = rng.permutation(na).astype(np.int64), rng.permutation(nb).astype(np.int64)
+    p3 = pairs.copy()
+    bp.sort_pairs(p3, na, None, ra, rb)
+    assert np.array_equal(p3, pairs[np.lexsort((rb[pairs[:, 1]], ra[pairs[:, 0]]))])
+
+
+@pytest.mark.parametrize("order", ["index", "morton"])
+def test_canonical_order_makes_the_broad_phases_agree_row_for_row(tmp_path, monkeypatch, order):
+    """``contacts.CANONICAL_ORDER``: the filtered rows of every detection of the 24 x 24 drop
+    (7 frames) are equal in order, not only as sets, with the trees and with the column grid."""
+    from pathlib import Path
+
+    from lokigraph.api import compile_file
+    from lokigraph.behaviors.collision import contacts as C
+    from lokigraph.run import Simulation
+
+    src = Path(__file__).resolve().parents[1] / "graphs" / "bench" / "cloth_sphere_64.yaml"
+    path = tmp_path / "drop.yaml"
+    path.write_text(src.read_text().replace("resolution: [64, 64]", "resolution: [24, 24]"))
+    monkeypatch.setattr(C, "CANONICAL_ORDER", order)
+    orig = C._detect_group
+    seen = {"rows": 0}
+
+    def both(g, x, x1, infl, v, h, spacetime=False):
+        out = {}
+        for flag in (False, True):
+            monkeypatch.setattr(C, "COLUMN_GRID", flag)
+            out[flag] = [(r[0].copy(), r[1].copy(), r[2].copy())
+                         for r in orig(g, x, x1, infl, v, h, spacetime)[:2]]
+        for a, b in zip(out[False], out[True]):
+            for u, w in zip(a, b):
+                assert np.array_equal(u, w)
+            seen["rows"] += len(a[0])
+        return orig(g, x, x1, infl, v, h, spacetime)
+
+    monkeypatch.setattr(C, "_detect_group", both)
+    sim = Simulation(compile_file(path))
+    for _ in range(7):
+        sim.step_frame()
+    assert seen["rows"] > 1000

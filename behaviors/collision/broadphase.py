@@ -173,6 +173,7 @@ __all__ = [
     "spacetime_prim_boxes",
     "column_query_self",
     "column_query_pairs",
+    "sort_pairs",
 ]
 
 _NO_LIMIT = 1 << 62  # write limit of a fill pass at exact offsets (never reached)
@@ -258,6 +259,14 @@ class PairBuffer:
         #: single-pass traversal's scratch
         self.expected = 0
         self._scratch = np.empty((0, 2), dtype=np.int64)
+        self._counts = np.empty(0, dtype=np.int64)
+
+    def _sort_counts(self, count: int) -> np.ndarray:
+        """An int64 scratch of ``count`` entries for :func:`sort_pairs`."""
+        if count > self._counts.shape[0]:
+            self._counts = np.empty(max(int(count), int(1.5 * self._counts.shape[0])),
+                                    dtype=np.int64)
+        return self._counts[:count]
 
     def scratch_rows(self, count: int) -> np.ndarray:
         """A ``(count, 2)`` scratch view for single-pass queries (grown like ``data``)."""
@@ -2082,3 +2091,86 @@ def column_query_pairs(lo_a, hi_a, lo_b, hi_b, prims_a=None, prims_b=None,
         raise ValueError("st: expected the spacetime_prim_boxes of the primitives")
     return _run_columns(np.concatenate([lo_a, lo_b]), np.concatenate([hi_a, hi_b]), na, False,
                         Pa, Pb, skip, st, out)
+
+
+# --------------------------------------------------------------------------------------------
+# Canonical pair order
+# --------------------------------------------------------------------------------------------
+
+
+@njit(cache=True)
+def _sort_pairs_kernel(pairs, n_a, rank_a, rank_b, tmp, cnt):
+    """Sort the rows of ``pairs`` by (key of first, key of second) in place, the key of a
+    primitive its ``rank`` (a permutation; empty: the index itself): a counting sort on the
+    first key into ``tmp`` (stable), then an insertion sort on the second key within each run
+    of equal first keys (short runs: a primitive's candidates), copied back. ``cnt``: n_a + 1
+    ints."""
+    m = pairs.shape[0]
+    ra = rank_a.shape[0] > 0
+    rb = rank_b.shape[0] > 0
+    cnt[:] = 0
+    for r in range(m):
+        a = rank_a[pairs[r, 0]] if ra else pairs[r, 0]
+        cnt[a + 1] += 1
+    for a in range(n_a):
+        cnt[a + 1] += cnt[a]
+    for r in range(m):
+        a = rank_a[pairs[r, 0]] if ra else pairs[r, 0]
+        p = cnt[a]
+        cnt[a] = p + 1
+        tmp[p, 0] = pairs[r, 0]
+        tmp[p, 1] = pairs[r, 1]
+    # cnt[a] is now the end of run a (the start of run a + 1)
+    s = 0
+    for a in range(n_a):
+        e = cnt[a]
+        for p in range(s + 1, e):
+            b = tmp[p, 1]
+            kb = rank_b[b] if rb else b
+            q = p - 1
+            while q >= s and (rank_b[tmp[q, 1]] if rb else tmp[q, 1]) > kb:
+                tmp[q + 1, 1] = tmp[q, 1]
+                q -= 1
+            tmp[q + 1, 1] = b
+        s = e
+    for r in range(m):
+        pairs[r, 0] = tmp[r, 0]
+        pairs[r, 1] = tmp[r, 1]
+
+
+_NO_RANK = np.zeros(0, dtype=np.int64)
+
+
+def sort_pairs(pairs, n_a: int, out: PairBuffer | None = None, rank_a=None,
+               rank_b=None) -> np.ndarray:
+    """Sort candidate rows ``(i, j)`` (``0 <= i < n_a``) in place by ``(rank_a[i], rank_b[j])``
+    (a rank left out: the index itself) and return them: a canonical order, the same whichever
+    query (trees or column grid) found the set. ``out``: the buffer the pairs came from, whose
+    scratch is reused (else one is allocated)."""
+    m = pairs.shape[0]
+    if m < 2:
+        return pairs
+    tmp = out.scratch_rows(m) if out is not None else np.empty((m, 2), dtype=np.int64)
+    cnt = (out._sort_counts(n_a + 1) if out is not None
+           else np.empty(n_a + 1, dtype=np.int64))
+    _sort_pairs_kernel(pairs, int(n_a), _NO_RANK if rank_a is None else rank_a,
+                       _NO_RANK if rank_b is None else rank_b, tmp, cnt)
+    return pairs
+
+
+@njit(cache=True)
+def _inverse_perm(order, rank):
+    for k in range(order.shape[0]):
+        rank[order[k]] = k
+
+
+def morton_rank(lo, hi, rank=None) -> np.ndarray:
+    """The position of every box in the Morton order of the box centres (the trees' leaf
+    order, ties by index): a permutation of ``0 .. m-1``, for :func:`sort_pairs`."""
+    n = lo.shape[0]
+    rank = np.empty(n, dtype=np.int64) if rank is None else rank
+    if n:
+        codes = np.empty(n, dtype=np.int64)
+        _morton_codes(lo, hi, codes)
+        _inverse_perm(np.argsort(codes, kind="stable"), rank)
+    return rank
