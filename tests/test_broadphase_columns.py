@@ -259,7 +259,7 @@ def test_sort_pairs_is_lexicographic(seed):
     assert np.array_equal(p3, pairs[np.lexsort((rb[pairs[:, 1]], ra[pairs[:, 0]]))])
 
 
-@pytest.mark.parametrize("order", ["index", "morton"])
+@pytest.mark.parametrize("order", ["index", "morton", "zorder"])
 def test_canonical_order_makes_the_broad_phases_agree_row_for_row(tmp_path, monkeypatch, order):
     """``contacts.CANONICAL_ORDER``: the filtered rows of every detection of the 24 x 24 drop
     (7 frames) are equal in order, not only as sets, with the trees and with the column grid."""
@@ -293,3 +293,34 @@ def test_canonical_order_makes_the_broad_phases_agree_row_for_row(tmp_path, monk
     for _ in range(7):
         sim.step_frame()
     assert seen["rows"] > 1000
+
+
+def test_zsort_pairs_is_the_z_order_of_the_ranks():
+    """``zsort_pairs``: rows sorted by the bit interleaving of (rank_a[i], rank_b[j]) (self:
+    of the smaller and larger rank), as a numpy argsort of the same keys."""
+    rng = np.random.default_rng(3)
+    na, nb = 3000, 5000
+    ra, rb = rng.permutation(na).astype(np.int64), rng.permutation(nb).astype(np.int64)
+    pairs = np.unique(np.stack([rng.integers(0, na, 20000), rng.integers(0, nb, 20000)], 1),
+                      axis=0)
+    rng.shuffle(pairs)
+
+    def spread(v):
+        out, v = np.zeros(len(v), np.uint64), v.astype(np.uint64)
+        for i in range(32):
+            out |= ((v >> np.uint64(i)) & np.uint64(1)) << np.uint64(2 * i)
+        return out
+
+    for self_mode in (False, True):
+        p = np.unique(np.sort(pairs % na, axis=1), axis=0) if self_mode else pairs.copy()
+        r2 = ra if self_mode else rb
+        ka, kb = ra[p[:, 0]], r2[p[:, 1]]
+        if self_mode:
+            ka, kb = np.minimum(ka, kb), np.maximum(ka, kb)
+        ref = p[np.argsort((spread(ka) << np.uint64(1)) | spread(kb))]
+        q = p.copy()
+        assert np.array_equal(bp.zsort_pairs(q, ra, r2, self_mode), ref)
+        buf = bp.PairBuffer()
+        q2 = buf.reserve(len(p))
+        q2[:] = p
+        assert np.array_equal(bp.zsort_pairs(q2, ra, r2, self_mode, buf), ref)

@@ -174,6 +174,8 @@ __all__ = [
     "column_query_self",
     "column_query_pairs",
     "sort_pairs",
+    "zsort_pairs",
+    "morton_rank",
 ]
 
 _NO_LIMIT = 1 << 62  # write limit of a fill pass at exact offsets (never reached)
@@ -260,6 +262,14 @@ class PairBuffer:
         self.expected = 0
         self._scratch = np.empty((0, 2), dtype=np.int64)
         self._counts = np.empty(0, dtype=np.int64)
+
+    def _zsort_keys(self, count: int):
+        """Two int64 scratch arrays of ``count`` entries for :func:`zsort_pairs`."""
+        k = getattr(self, "_keys", None)
+        if k is None or count > k.shape[1]:
+            n = max(int(count), int(1.5 * (0 if k is None else k.shape[1])))
+            k = self._keys = np.empty((2, n), dtype=np.int64)
+        return k[0, :count], k[1, :count]
 
     def _sort_counts(self, count: int) -> np.ndarray:
         """An int64 scratch of ``count`` entries for :func:`sort_pairs`."""
@@ -2155,6 +2165,83 @@ def sort_pairs(pairs, n_a: int, out: PairBuffer | None = None, rank_a=None,
            else np.empty(n_a + 1, dtype=np.int64))
     _sort_pairs_kernel(pairs, int(n_a), _NO_RANK if rank_a is None else rank_a,
                        _NO_RANK if rank_b is None else rank_b, tmp, cnt)
+    return pairs
+
+
+@njit(cache=True, inline="always")
+def _spread32(v):
+    """The low 32 bits of ``v`` spread to the even bits of a 64-bit integer."""
+    v &= 0xFFFFFFFF
+    v = (v | (v << 16)) & 0x0000FFFF0000FFFF
+    v = (v | (v << 8)) & 0x00FF00FF00FF00FF
+    v = (v | (v << 4)) & 0x0F0F0F0F0F0F0F0F
+    v = (v | (v << 2)) & 0x3333333333333333
+    v = (v | (v << 1)) & 0x5555555555555555
+    return v
+
+
+@njit(cache=True)
+def _zsort_kernel(pairs, rank_a, rank_b, self_mode, bits, key, key2, tmp, cnt):
+    """Sort the rows of ``pairs`` in place by the Z-order (bit interleaving) of their ranks
+    ``(rank_a[i], rank_b[j])`` (self mode: of the smaller and the larger rank): an LSD radix
+    sort, 11 bits a pass, over the ``bits`` low bits of the keys; distinct rows have distinct
+    keys, so the order is total. ``key``, ``key2``: int64 scratch, ``tmp``: rows, ``cnt``:
+    2049 ints."""
+    m = pairs.shape[0]
+    for r in range(m):
+        ka = rank_a[pairs[r, 0]]
+        kb = rank_b[pairs[r, 1]]
+        if self_mode and kb < ka:
+            ka, kb = kb, ka
+        key[r] = (_spread32(ka) << 1) | _spread32(kb)
+    src_k, dst_k, src_p, dst_p = key, key2, pairs, tmp
+    shift = 0
+    while shift < bits:
+        cnt[:] = 0
+        for r in range(m):
+            cnt[((src_k[r] >> shift) & 2047) + 1] += 1
+        for d in range(2048):
+            cnt[d + 1] += cnt[d]
+        for r in range(m):
+            d = (src_k[r] >> shift) & 2047
+            q = cnt[d]
+            cnt[d] = q + 1
+            dst_k[q] = src_k[r]
+            dst_p[q, 0] = src_p[r, 0]
+            dst_p[q, 1] = src_p[r, 1]
+        src_k, dst_k = dst_k, src_k
+        src_p, dst_p = dst_p, src_p
+        shift += 11
+    if src_p is not pairs:
+        for r in range(m):
+            pairs[r, 0] = src_p[r, 0]
+            pairs[r, 1] = src_p[r, 1]
+
+
+def zsort_pairs(pairs, rank_a, rank_b, self_mode: bool = False,
+                out: PairBuffer | None = None) -> np.ndarray:
+    """Sort candidate rows ``(i, j)`` in place by the Z-order of ``(rank_a[i], rank_b[j])``
+    (self pairs: of their smaller and larger rank) and return them. With the Morton ranks of
+    the primitives (:func:`morton_rank`: the trees' leaf order) this is about the order in which
+    a simultaneous traversal of two trees meets the pairs (pairs of two nearby primitives
+    together, block by block), but canonical: the same whichever query found the set. ``out``:
+    the buffer the pairs came from (its scratch is reused)."""
+    m = pairs.shape[0]
+    if m < 2:
+        return pairs
+    top = max(int(rank_a.shape[0]), int(rank_b.shape[0]), 2) - 1
+    bits = 2 * top.bit_length()
+    if bits > 64:
+        raise ValueError("zsort_pairs: ranks above 2^32")
+    if out is not None:
+        tmp = out.scratch_rows(m)
+        key, key2 = out._zsort_keys(m)
+        cnt = out._sort_counts(2049)
+    else:
+        tmp = np.empty((m, 2), dtype=np.int64)
+        key, key2 = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
+        cnt = np.empty(2049, dtype=np.int64)
+    _zsort_kernel(pairs, rank_a, rank_b, bool(self_mode), bits, key, key2, tmp, cnt)
     return pairs
 
 
