@@ -109,6 +109,19 @@ Measured on the rolled sheet of ``python -m lokigraph.bench.broadphase`` at 50k 
 primitives' space-time rows took 622 ms against 1,081 ms for the trees' builds, space-time
 boxes and queries.
 
+The column count and the counting sort run in chunks of the sorted boxes on all threads from
+16,384 boxes (``_COL_PAR_MIN``: per-chunk column counts, each chunk filling its own runs), the
+same entries in the same order as the serial pass.
+
+Canonical pair order
+--------------------
+:func:`sort_pairs` (a counting sort by the first index, or by given ranks) and
+:func:`zsort_pairs` (an LSD radix sort by the Z-order of the pair's two ranks, with
+:func:`morton_rank`: the Morton order of the primitives, the trees' leaf order) put a candidate
+set in an order that does not depend on the query that found it: the collision contacts sort
+the column grid's candidates by the Z-order (``contacts.GRID_ORDER``), whose spatially
+coherent blocks converge about as well in their Gauss-Seidel projection as the trees' order.
+
 Hash grid
 ---------
 :func:`build_hash_grid` bins points into cubic cells of side ``cell_size`` hashed into a table of
@@ -1667,6 +1680,8 @@ COLUMN_CELL = 1.0
 #: (``_col_big_kernel``) instead of being entered into every column they cross
 _COL_BIG_SPAN = 4
 _COL_NO_ST = np.zeros((0, 14))
+#: box counts from which the column count and fill run in chunks on all threads
+_COL_PAR_MIN = 16384
 
 
 @njit(cache=True)
@@ -1777,6 +1792,74 @@ def _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, fl
                     fill_b[col] = p + 1
                 ent[p] = i
                 flag[p] = (1 if x == x0 else 0) | (2 if y == y0 else 0)
+
+
+@njit(parallel=True, cache=True)
+def _col_hist(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist):
+    """Parallel column count: chunk k of ``order`` (``hist.shape[0]`` equal chunks) counts its
+    boxes' entries per column into ``hist[k, 0]`` (set a) and ``hist[k, 1]`` (set b)."""
+    nch = hist.shape[0]
+    m = order.shape[0]
+    for k in prange(nch):
+        hist[k, :, :] = 0
+        for t in range(k * m // nch, (k + 1) * m // nch):
+            i = order[t]
+            if big[i]:
+                continue
+            x0 = int((lo[i, a0] - o0) / c)
+            x1 = int((hi[i, a0] - o0) / c)
+            y0 = int((lo[i, a1] - o1) / c)
+            y1 = int((hi[i, a1] - o1) / c)
+            b = 0 if i < na else 1
+            for x in range(x0, x1 + 1):
+                for y in range(y0, y1 + 1):
+                    hist[k, b, x * ny + y] += 1
+
+
+@njit(cache=True)
+def _col_offsets(hist, start, mid):
+    """CSR offsets from the chunks' counts: column ``col`` holds set a's entries (chunk 0,
+    1, ...) then set b's from ``mid[col]``; ``hist`` becomes every chunk's first position per
+    set and column. Returns the entry count."""
+    nch = hist.shape[0]
+    ncol = hist.shape[2]
+    pos = 0
+    for col in range(ncol):
+        start[col] = pos
+        for b in range(2):
+            if b == 1:
+                mid[col] = pos
+            for k in range(nch):
+                cnt = hist[k, b, col]
+                hist[k, b, col] = pos
+                pos += cnt
+    start[ncol] = pos
+    return pos
+
+
+@njit(parallel=True, cache=True)
+def _col_fill_par(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist, ent, flag):
+    """:func:`_col_fill` with the chunks of :func:`_col_hist` in parallel, each from its own
+    positions (``hist`` after :func:`_col_offsets`): every column's runs stay sorted."""
+    nch = hist.shape[0]
+    m = order.shape[0]
+    for k in prange(nch):
+        for t in range(k * m // nch, (k + 1) * m // nch):
+            i = order[t]
+            if big[i]:
+                continue
+            x0 = int((lo[i, a0] - o0) / c)
+            x1 = int((hi[i, a0] - o0) / c)
+            y0 = int((lo[i, a1] - o1) / c)
+            y1 = int((hi[i, a1] - o1) / c)
+            b = 0 if i < na else 1
+            for x in range(x0, x1 + 1):
+                for y in range(y0, y1 + 1):
+                    col = x * ny + y
+                    p = hist[k, b, col]
+                    hist[k, b, col] = p + 1
+                    ent[p] = i
+                    flag[p] = (1 if x == x0 else 0) | (2 if y == y0 else 0)
 
 
 @njit(parallel=True, cache=True)
@@ -1955,6 +2038,19 @@ def _tree_fallback(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out
                    sa if st.shape[0] else None, sb if st.shape[0] else None)
 
 
+def _col_work(out, key, shape, dtype=np.float64):
+    """A scratch array of ``shape`` kept in the buffer ``out`` under ``key`` (grown by half
+    when too small; a view of the size asked), or a new one without a buffer."""
+    if out is None:
+        return np.empty(shape, dtype=dtype)
+    ws = out.__dict__.setdefault("_col_ws", {})
+    a = ws.get(key)
+    if a is None or a.shape[0] < shape[0] or a.shape[1:] != tuple(shape[1:]):
+        n = max(int(shape[0]), int(1.5 * a.shape[0]) if a is not None else 0)
+        a = ws[key] = np.empty((n,) + tuple(shape[1:]), dtype=dtype)
+    return a[:shape[0]]
+
+
 def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
     n = lo.shape[0]
     if n == 0:
@@ -1962,18 +2058,29 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
     span = max(float(np.max(hi)) - float(np.min(lo)), float(np.max(lo)) - float(np.min(hi)))
     if not (np.isfinite(span) and span < 1e150):
         return _tree_fallback(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out)
-    big = np.empty(n, dtype=np.bool_)
+    big = _col_work(out, "big", (n,), np.bool_)
     s, a0, a1, c, o0, o1, nx, ny, nbig = _col_setup(lo, hi, COLUMN_CELL, _COL_BIG_SPAN, big)
     ncol = nx * ny
-    start = np.empty(ncol + 1, dtype=np.int64)
-    mid = np.empty(ncol, dtype=np.int64)
-    nent = _col_count(lo, hi, big, na, a0, a1, c, o0, o1, ny, start, mid)
-    ent = np.empty(nent, dtype=np.int64)
-    flag = np.empty(nent, dtype=np.int64)
-    if nent:
+    start = _col_work(out, "start", (ncol + 1,), np.int64)
+    mid = _col_work(out, "mid", (ncol,), np.int64)
+    nch = get_num_threads() if n >= _COL_PAR_MIN else 1
+    if nch > 1:
+        # the counting sort in chunks, in parallel (same entries in the same order)
         order = np.argsort(lo[:, s], kind="stable")
-        _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, flag)
-    B = np.empty((nent, 6))
+        hist = _col_work(out, "hist", (nch, 2, ncol), np.int64)
+        _col_hist(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist)
+        nent = _col_offsets(hist, start, mid)
+        ent = _col_work(out, "ent", (nent,), np.int64)
+        flag = _col_work(out, "flag", (nent,), np.int64)
+        _col_fill_par(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist, ent, flag)
+    else:
+        nent = _col_count(lo, hi, big, na, a0, a1, c, o0, o1, ny, start, mid)
+        ent = _col_work(out, "ent", (nent,), np.int64)
+        flag = _col_work(out, "flag", (nent,), np.int64)
+        if nent:
+            order = np.argsort(lo[:, s], kind="stable")
+            _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, flag)
+    B = _col_work(out, "B", (nent, 6))
     _col_gather(ent, lo, hi, s, a0, a1, B)
     # slots: runs of whole columns with about equal entry counts, two per thread, swept in
     # parallel; the rows come in column order whatever the slots
@@ -2096,11 +2203,21 @@ def column_query_pairs(lo_a, hi_a, lo_b, hi_b, prims_a=None, prims_b=None,
         return _reserve(out, 0)
     if (st_a is None) != (st_b is None):
         raise ValueError("column_query_pairs: give both st_a and st_b, or neither")
-    st = _COL_NO_ST if st_a is None else np.concatenate([st_a, st_b])
-    if st.shape[0] not in (0, na + nb):
-        raise ValueError("st: expected the spacetime_prim_boxes of the primitives")
-    return _run_columns(np.concatenate([lo_a, lo_b]), np.concatenate([hi_a, hi_b]), na, False,
-                        Pa, Pb, skip, st, out)
+    if st_a is None:
+        st = _COL_NO_ST
+    else:
+        if st_a.shape[0] != na or st_b.shape[0] != nb:
+            raise ValueError("st: expected the spacetime_prim_boxes of the primitives")
+        st = _col_work(out, "st", (na + nb, 14))
+        st[:na] = st_a
+        st[na:] = st_b
+    lo = _col_work(out, "lo", (na + nb, 3))
+    hi = _col_work(out, "hi", (na + nb, 3))
+    lo[:na] = lo_a
+    lo[na:] = lo_b
+    hi[:na] = hi_a
+    hi[na:] = hi_b
+    return _run_columns(lo, hi, na, False, Pa, Pb, skip, st, out)
 
 
 # --------------------------------------------------------------------------------------------

@@ -20,7 +20,9 @@ Timed, each as the median over ``repeats`` runs after a JIT warm-up run:
 * sorted column grid: the same queries without trees (:func:`column_query_pairs`,
   :func:`column_query_self` on the boxes of the next step, into reused buffers), timed in the
   same runs, interleaved with the BVH's; its pair counts must equal the BVH's. "boxes" is the
-  box computation alone (the grid has no tree to refit), compared with the BVH's refit.
+  box computation alone (the grid has no tree to refit), compared with the BVH's refit;
+  "z-sort" the Morton ranks and the Z-order sort (:func:`zsort_pairs`) of both pair sets that
+  the contacts add to the grid's candidates (``contacts.GRID_ORDER``), timed apart.
 """
 
 from __future__ import annotations
@@ -106,7 +108,17 @@ def bench_one(n_tri: int, repeats: int):
         ee = bp.column_query_self(lo_e, hi_e, E, out=col_ee)
         return vf.shape[0], ee.shape[0]
 
+    rank_v, rank_e, rank_f = (np.empty(len(a), np.int64) for a in (verts, E, F))
+
+    def col_sort():
+        # the contacts' order of the grid's candidates (contacts.GRID_ORDER "zorder")
+        bp.zsort_pairs(col_vf.data[:col_counts[0]], bp.morton_rank(lo_v, hi_v, rank_v),
+                       bp.morton_rank(lo_f, hi_f, rank_f), False, col_vf)
+        bp.zsort_pairs(col_ee.data[:col_counts[1]], bp.morton_rank(lo_e, hi_e, rank_e),
+                       rank_e, True, col_ee)
+
     tb, tr, tq, tcb, tcq, cpu_bvh, cpu_col = [], [], [], [], [], [], []
+    tcs, cpu_sort = [], []
     counts = col_counts = None
     for rep in range(repeats + 1):  # run 0 is the JIT warm-up; BVH and columns interleaved
         t0 = time.perf_counter()
@@ -123,6 +135,9 @@ def bench_one(n_tri: int, repeats: int):
         col_counts = col_query()
         t5 = time.perf_counter()
         c3 = time.process_time()
+        col_sort()
+        t6 = time.perf_counter()
+        c4 = time.process_time()
         if rep:
             tb.append(t1 - t0)
             tr.append(t2 - t1)
@@ -131,6 +146,8 @@ def bench_one(n_tri: int, repeats: int):
             tcq.append(t5 - t4)
             cpu_bvh.append(c2 - c1)
             cpu_col.append(c3 - c2)
+            tcs.append(t6 - t5)
+            cpu_sort.append(c4 - c3)
     if col_counts != counts:
         raise RuntimeError(f"column grid found {col_counts} pairs, the BVH {counts}")
     trees = build()
@@ -141,7 +158,8 @@ def bench_one(n_tri: int, repeats: int):
                 refit=1e3 * np.median(tr), query=1e3 * np.median(tq), vf=counts[0], ee=counts[1],
                 move=step_move, cost=cost_refit / cost_build, col_boxes=1e3 * np.median(tcb),
                 col_query=1e3 * np.median(tcq), cpu_bvh=1e3 * np.median(cpu_bvh),
-                cpu_col=1e3 * np.median(cpu_col))
+                cpu_col=1e3 * np.median(cpu_col), col_sort=1e3 * np.median(tcs),
+                cpu_sort=1e3 * np.median(cpu_sort))
 
 
 def main(argv=None):
@@ -171,15 +189,18 @@ def main(argv=None):
     print("sorted column grid (column_query_pairs / column_query_self, no trees; same pair "
           "counts), interleaved with the BVH runs above:")
     hdr = (f"{'triangles':>10} {'boxes ms':>9} {'query ms':>9} {'boxes+query':>12} "
-           f"{'BVH CPU ms':>11} {'grid CPU ms':>12} {'CPU ratio':>10}")
+           f"{'BVH CPU ms':>11} {'grid CPU ms':>12} {'CPU ratio':>10} {'z-sort ms':>10} "
+           f"{'sort CPU ms':>12}")
     print(hdr)
     print("-" * len(hdr))
     for r in rows:
         print(f"{r['tris']:>10d} {r['col_boxes']:>9.2f} {r['col_query']:>9.2f} "
               f"{r['col_boxes'] + r['col_query']:>12.2f} {r['cpu_bvh']:>11.2f} "
-              f"{r['cpu_col']:>12.2f} {r['cpu_col'] / r['cpu_bvh']:>10.3f}")
+              f"{r['cpu_col']:>12.2f} {r['cpu_col'] / r['cpu_bvh']:>10.3f} "
+              f"{r['col_sort']:>10.2f} {r['cpu_sort']:>12.2f}")
     print("(CPU: process time of the BVH's refit+query and of the grid's boxes+query, all threads; "
-          "ratio grid / BVH)")
+          "ratio grid / BVH; z-sort: the Morton ranks and the Z-order sort of both pair sets, "
+          "the contacts' order of the grid's candidates, not in boxes+query)")
     print("max vertex motion per step [edge lengths]: "
           + ", ".join(f"{r['move']:.3f}" for r in rows))
     return 0
