@@ -127,22 +127,33 @@ def test_degenerate_inputs():
         bp.column_query_self(np.zeros((3, 3)), np.zeros((3, 3)), np.zeros((2, 2), np.int64))
 
 
-def test_rows_independent_of_thread_count():
+@pytest.mark.parametrize("par_min", [None, 0])
+def test_rows_independent_of_thread_count(monkeypatch, par_min):
+    """Same rows in the same order at 1 and 2 threads; ``par_min`` 0: the column count and
+    fill in parallel chunks (``_COL_PAR_MIN``) at 2 threads, serial at 1."""
+    if par_min is not None:
+        monkeypatch.setattr(bp, "_COL_PAR_MIN", par_min)
     X0, F, h = rolled_sheet(30, 0.0)
     X1, _, _ = rolled_sheet(30, 1.0)
     E = bp.mesh_edges(F)
+    V = np.arange(len(X0))
     lo, hi = bp.primitive_boxes(X0, E, X1, 0.1 * h)
+    lo_v, hi_v = bp.primitive_boxes(X0, V, X1, 0.1 * h)
+    lo_f, hi_f = bp.primitive_boxes(X0, F, X1, 0.1 * h)
     threads = numba.get_num_threads()
     if numba.config.NUMBA_NUM_THREADS < 2:
         pytest.skip("numba has one thread")
     try:
         numba.set_num_threads(1)
         one = bp.column_query_self(lo, hi, E).copy()
+        one_vf = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F).copy()
         numba.set_num_threads(2)
         two = bp.column_query_self(lo, hi, E, out=bp.PairBuffer())
+        two_vf = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F, out=bp.PairBuffer())
     finally:
         numba.set_num_threads(threads)
-    assert np.array_equal(one, two)
+    assert np.array_equal(one, two) and len(one) > 1000
+    assert np.array_equal(one_vf, two_vf) and len(one_vf) > 100
 
 
 @pytest.mark.parametrize("threads", [1, 2])
@@ -189,6 +200,7 @@ def test_contacts_detect_the_same_rows_with_either_broad_phase(tmp_path, monkeyp
     src = Path(__file__).resolve().parents[1] / "graphs" / "bench" / "cloth_sphere_64.yaml"
     path = tmp_path / "drop.yaml"
     path.write_text(src.read_text().replace("resolution: [64, 64]", "resolution: [24, 24]"))
+    monkeypatch.setattr(C, "COLUMN_GRID_MIN_TRIS", 0)
     orig = C._detect_group
     seen = {"calls": 0, "rows": 0, "st": 0}
 
@@ -273,6 +285,7 @@ def test_canonical_order_makes_the_broad_phases_agree_row_for_row(tmp_path, monk
     path = tmp_path / "drop.yaml"
     path.write_text(src.read_text().replace("resolution: [64, 64]", "resolution: [24, 24]"))
     monkeypatch.setattr(C, "CANONICAL_ORDER", order)
+    monkeypatch.setattr(C, "COLUMN_GRID_MIN_TRIS", 0)
     orig = C._detect_group
     seen = {"rows": 0}
 
