@@ -2297,42 +2297,60 @@ def _spread32(v):
     return v
 
 
+@njit(cache=True, inline="always")
+def _compact32(v):
+    """The inverse of :func:`_spread32`: the even bits of ``v`` packed into 32."""
+    v &= 0x5555555555555555
+    v = (v | (v >> 1)) & 0x3333333333333333
+    v = (v | (v >> 2)) & 0x0F0F0F0F0F0F0F0F
+    v = (v | (v >> 4)) & 0x00FF00FF00FF00FF
+    v = (v | (v >> 8)) & 0x0000FFFF0000FFFF
+    v = (v | (v >> 16)) & 0x00000000FFFFFFFF
+    return v
+
+
 @njit(cache=True)
-def _zsort_kernel(pairs, rank_a, rank_b, self_mode, bits, key, key2, tmp, cnt):
+def _zsort_kernel(pairs, rank_a, rank_b, self_mode, bits, key, key2, inv_a, inv_b, cnt):
     """Sort the rows of ``pairs`` in place by the Z-order (bit interleaving) of their ranks
-    ``(rank_a[i], rank_b[j])`` (self mode: of the smaller and the larger rank): an LSD radix
-    sort, 11 bits a pass, over the ``bits`` low bits of the keys; distinct rows have distinct
-    keys, so the order is total. ``key``, ``key2``: int64 scratch, ``tmp``: rows, ``cnt``:
-    2049 ints."""
+    ``(rank_a[i], rank_b[j])`` (self mode: of the smaller and the larger rank; the rows are
+    ``i < j``): an LSD radix sort of the keys alone, 11 bits a pass, over their ``bits`` low
+    bits, then every row decoded from its key through the inverse ranks ``inv_a``, ``inv_b``
+    (distinct rows have distinct keys, so the order is total). ``key``, ``key2``: int64
+    scratch of the row count, ``cnt``: 2049 ints."""
     m = pairs.shape[0]
+    for i in range(rank_a.shape[0]):
+        inv_a[rank_a[i]] = i
+    for i in range(rank_b.shape[0]):
+        inv_b[rank_b[i]] = i
     for r in range(m):
         ka = rank_a[pairs[r, 0]]
         kb = rank_b[pairs[r, 1]]
         if self_mode and kb < ka:
             ka, kb = kb, ka
         key[r] = (_spread32(ka) << 1) | _spread32(kb)
-    src_k, dst_k, src_p, dst_p = key, key2, pairs, tmp
+    src, dst = key, key2
     shift = 0
     while shift < bits:
         cnt[:] = 0
         for r in range(m):
-            cnt[((src_k[r] >> shift) & 2047) + 1] += 1
+            cnt[((src[r] >> shift) & 2047) + 1] += 1
         for d in range(2048):
             cnt[d + 1] += cnt[d]
         for r in range(m):
-            d = (src_k[r] >> shift) & 2047
+            d = (src[r] >> shift) & 2047
             q = cnt[d]
             cnt[d] = q + 1
-            dst_k[q] = src_k[r]
-            dst_p[q, 0] = src_p[r, 0]
-            dst_p[q, 1] = src_p[r, 1]
-        src_k, dst_k = dst_k, src_k
-        src_p, dst_p = dst_p, src_p
+            dst[q] = src[r]
+        src, dst = dst, src
         shift += 11
-    if src_p is not pairs:
-        for r in range(m):
-            pairs[r, 0] = src_p[r, 0]
-            pairs[r, 1] = src_p[r, 1]
+    for r in range(m):
+        k = src[r]
+        i = inv_a[_compact32(k >> 1)]
+        j = inv_b[_compact32(k)]
+        if self_mode and j < i:
+            i, j = j, i
+        pairs[r, 0] = i
+        pairs[r, 1] = j
 
 
 def zsort_pairs(pairs, rank_a, rank_b, self_mode: bool = False,
@@ -2350,15 +2368,15 @@ def zsort_pairs(pairs, rank_a, rank_b, self_mode: bool = False,
     bits = 2 * top.bit_length()
     if bits > 64:
         raise ValueError("zsort_pairs: ranks above 2^32")
+    na, nb = int(rank_a.shape[0]), int(rank_b.shape[0])
     if out is not None:
-        tmp = out.scratch_rows(m)
         key, key2 = out._zsort_keys(m)
-        cnt = out._sort_counts(2049)
+        inv = out._sort_counts(2049 + na + nb)
     else:
-        tmp = np.empty((m, 2), dtype=np.int64)
         key, key2 = np.empty(m, dtype=np.int64), np.empty(m, dtype=np.int64)
-        cnt = np.empty(2049, dtype=np.int64)
-    _zsort_kernel(pairs, rank_a, rank_b, bool(self_mode), bits, key, key2, tmp, cnt)
+        inv = np.empty(2049 + na + nb, dtype=np.int64)
+    _zsort_kernel(pairs, rank_a, rank_b, bool(self_mode), bits, key, key2, inv[2049:2049 + na],
+                  inv[2049 + na:], inv[:2049])
     return pairs
 
 
