@@ -277,15 +277,19 @@ class GlobalStrainStep:
         A = A + sp.diags(alpha * A.diagonal() + 1e-300)
         return spla.splu(A.tocsc(), permc_spec="COLAMD"), keep
 
-    def _pivot(self, J, C, lim, alpha, Wb, iters, tol, F0=None):
+    def _pivot(self, J, C, lim, alpha, Wb, iters, tol, F0=None, update=0, need_lu=True):
         """The rows' inequalities as a linear complementarity problem: dlam >= 0, C - A dlam
         <= 0, complementary (A = J W J^T over the candidate rows, regularised by alpha
         diag(A) on the active ones), by block principal pivoting (Judice & Pires 1994): solve
         the active rows (at first those with C > 0 or in ``F0``), then swap every active row whose
         multiplier has the wrong sign out and every inactive row the step carries more than
         ``tol / 2`` of its ``lim`` over in, up to ``iters`` times; the active set with the
-        fewest such rows is used. Returns (SuperLU of its rows, their indices into J, their
-        J, their dlam)."""
+        fewest such rows is used. With ``update`` > 0 a pivot that changes at most that many
+        rows from the last factorised set solves with that set's factor and a Schur
+        complement over the changed rows (``_schur``) instead of factorising again (the
+        same solve up to round-off). Returns (SuperLU of its rows -- None when ``need_lu``
+        is False and the set was not factorised --, their indices into J, their J, their
+        dlam)."""
         if Wb is not None:
             JW = (J @ Wb).tocsr()
             dg = np.asarray(JW.multiply(J).sum(axis=1)).ravel()
@@ -303,11 +307,23 @@ class GlobalStrainStep:
         if F0 is not None:  # warm start: the last pass's active set
             F |= F0 if ok is None else F0[ok]
         gap = 0.5 * tol * lim
-        best = None
+        best = base = None
         for it in range(iters + 1):
             idx = np.flatnonzero(F)
-            lu = spla.splu(R[idx][:, idx].tocsc(), permc_spec="COLAMD")
-            dl = lu.solve(C[idx])
+            dl = lu = None
+            if base is not None:
+                idx0, in0 = base[1], base[2]
+                drop, add = idx0[~F[idx0]], idx[~in0[idx]]
+                if len(drop) + len(add) <= update:
+                    dl = self._schur(R, C, base, drop, add, idx)
+                    self.stats["updates"] = self.stats.get("updates", 0) + 1
+            if dl is None:
+                lu = spla.splu(R[idx][:, idx].tocsc(), permc_spec="COLAMD")
+                dl = lu.solve(C[idx])
+                if update:
+                    pos = np.full(len(C), -1, np.int64)
+                    pos[idx] = np.arange(len(idx))
+                    base = (lu, idx, F.copy(), pos)
             dlam = np.zeros(len(C))
             dlam[idx] = dl
             Cn = C - A @ dlam
@@ -322,9 +338,50 @@ class GlobalStrainStep:
             F[out] = False
             F[inn] = True
         nbad, lu, idx, dl = best
+        if lu is None and need_lu:
+            lu = spla.splu(R[idx][:, idx].tocsc(), permc_spec="COLAMD")
         self.stats["unpivoted"] = max(self.stats.get("unpivoted", 0), nbad)
         rows = idx if ok is None else ok[idx]
         return lu, rows, J[idx], dl
+
+    @staticmethod
+    def _schur(R, C, base, drop, add, idx):
+        """Solve R[idx, idx] x = C[idx] with the factor of R over the set ``idx0`` (``base``:
+        SuperLU, idx0, its mask, position of each row in idx0), idx = idx0 - drop + add: the
+        bordered system [[B, R0a, -E], [Ra0, Raa, 0], [E^T, 0, 0]] [x0, xa, mu] = [c0 (0 on
+        the dropped rows), ca, 0] (B = R[idx0, idx0], E: the dropped rows' unit columns),
+        eliminated through B: (S - W^T B^-1 V) [xa, mu] = [ca, 0] - W^T B^-1 c0."""
+        lu, idx0, _, pos = base
+        na, nd = len(add), len(drop)
+        pd = pos[drop]
+        c0 = C[idx0].copy()
+        c0[pd] = 0.0
+        y0 = lu.solve(c0)
+        if na + nd == 0:
+            return y0
+        V = np.zeros((len(idx0), na + nd))
+        Ra = np.zeros((0, 0))
+        if na:
+            Rc = R[:, add].tocsc()
+            V[:, :na] = Rc[idx0].toarray()
+            Ra = Rc[add].toarray()
+        V[pd, na + np.arange(nd)] = -1.0
+        Y = lu.solve(V)
+        # W = V with the dropped columns' sign flipped
+        M = np.zeros((na + nd, na + nd))
+        M[:na, :na] = Ra
+        M[:na] -= V[:, :na].T @ Y
+        M[na:] -= Y[pd]
+        r = np.zeros(na + nd)
+        r[:na] = C[add] - V[:, :na].T @ y0
+        r[na:] = -y0[pd]
+        z = np.linalg.solve(M, r)
+        x0 = y0 - Y @ z
+        out = np.empty(len(idx))
+        keep = pos[idx] >= 0
+        out[keep] = x0[pos[idx[keep]]]
+        out[~keep] = z[:na][np.searchsorted(add, idx[~keep])]
+        return out
 
     def _move(self, p, w, tol, worst, dx, guard):
         """p -= dx, the step capped at ``dmax`` per vertex and, with ``guard``, halved (up to 4
@@ -342,7 +399,7 @@ class GlobalStrainStep:
                 p[:] = p0 - dx
 
     def run(self, p, w, contacts, passes, tol, near, alpha, with_contacts="filter",
-            pivots=0):
+            pivots=0, update=0):
         """Up to ``passes`` Newton steps on p (in place) until every edge is within
         (1 + tol) limit. Returns the worst relative excess left.
 
@@ -404,7 +461,7 @@ class GlobalStrainStep:
             if (filt or not kinds) and pivots:
                 J = self._jacobian(w, self.e_idx, self.e_n, ne, *_NO_CONTACTS)
                 lu, rows, J, dlam = self._pivot(J, self.e_c[:ne], self.limit[self.e_idx[:ne]],
-                                                alpha, Wb, pivots, tol)
+                                                alpha, Wb, pivots, tol, update=update)
                 frozen = self.e_idx[rows].copy()
                 self._mark[:] = False
                 self._mark[frozen] = True
@@ -449,7 +506,7 @@ class GlobalStrainStep:
                 lim = np.concatenate([self.limit[self.e_idx[:ne]], np.full(nc, 2.0 * self.dmax)])
                 ids = np.concatenate([self.e_idx[:ne], len(self.edges) + vv])
                 lu, rows, J, dlam = self._pivot(J, C, lim, alpha, None, pivots, tol,
-                                                self._act[ids])
+                                                self._act[ids], update, False)
                 self._act[:] = False
                 self._act[ids[rows]] = True
                 dx = J.multiply(self.w3[None, :]).T @ dlam
