@@ -184,7 +184,10 @@ class StrainLimitParams(ConstraintParams):
         "solves over the swapped rows cost more than a factorisation). 24 frames, one interleaved "
         "run (graphs/bench/cloth_strain.py, CPU per frame over the second half): defaults "
         "6.64 % (560 ms); 0: 1.10 % (2762 ms, 4.9x); 16: 1.10 % (2423 ms, 4.3x), 0 "
-        "penetrations both.")
+        "penetrations both. With the pivots' symmetric ordering (SuperLU MMD_AT_PLUS_A, "
+        "strain_limit_global.py) too, one interleaved run, 24 frames: defaults 6.64 % "
+        "(658 ms); global_update 0 with COLAMD (the step before) 1.10 % (3417 ms, 5.2x); "
+        "global_update 16 with the symmetric ordering 1.10 % (2457 ms, 3.7x), 0 penetrations.")
     global_alpha: float = Field(
         1e-3, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
         "step's system, relative to its diagonal [-]. An inextensible triangle mesh has about "
