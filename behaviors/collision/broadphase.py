@@ -1740,6 +1740,14 @@ def _col_setup(lo, hi, factor, big_span, big):
         c *= 2.0
 
 
+@njit(inline="always", cache=True)
+def _cells(lo, hi, i, a0, a1, c, o0, o1):
+    """The grid columns box ``i`` covers: x0..x1 along ``a0``, y0..y1 along ``a1`` (cell ``c``,
+    origin ``o0``, ``o1``)."""
+    return (int((lo[i, a0] - o0) / c), int((hi[i, a0] - o0) / c),
+            int((lo[i, a1] - o1) / c), int((hi[i, a1] - o1) / c))
+
+
 @njit(cache=True)
 def _col_count(lo, hi, big, na, a0, a1, c, o0, o1, ny, start, mid):
     """CSR offsets ``start`` (ncol + 1) of the boxes' column entries, a column's entries of set
@@ -1751,10 +1759,7 @@ def _col_count(lo, hi, big, na, a0, a1, c, o0, o1, ny, start, mid):
     for i in range(n):
         if big[i]:
             continue
-        x0 = int((lo[i, a0] - o0) / c)
-        x1 = int((hi[i, a0] - o0) / c)
-        y0 = int((lo[i, a1] - o1) / c)
-        y1 = int((hi[i, a1] - o1) / c)
+        x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
         for x in range(x0, x1 + 1):
             for y in range(y0, y1 + 1):
                 start[x * ny + y + 1] += 1
@@ -1777,10 +1782,7 @@ def _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, fl
         i = order[t]
         if big[i]:
             continue
-        x0 = int((lo[i, a0] - o0) / c)
-        x1 = int((hi[i, a0] - o0) / c)
-        y0 = int((lo[i, a1] - o1) / c)
-        y1 = int((hi[i, a1] - o1) / c)
+        x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
         for x in range(x0, x1 + 1):
             for y in range(y0, y1 + 1):
                 col = x * ny + y
@@ -1806,10 +1808,7 @@ def _col_hist(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist):
             i = order[t]
             if big[i]:
                 continue
-            x0 = int((lo[i, a0] - o0) / c)
-            x1 = int((hi[i, a0] - o0) / c)
-            y0 = int((lo[i, a1] - o1) / c)
-            y1 = int((hi[i, a1] - o1) / c)
+            x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
             b = 0 if i < na else 1
             for x in range(x0, x1 + 1):
                 for y in range(y0, y1 + 1):
@@ -1848,10 +1847,7 @@ def _col_fill_par(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist, ent, flag
             i = order[t]
             if big[i]:
                 continue
-            x0 = int((lo[i, a0] - o0) / c)
-            x1 = int((hi[i, a0] - o0) / c)
-            y0 = int((lo[i, a1] - o1) / c)
-            y1 = int((hi[i, a1] - o1) / c)
+            x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
             b = 0 if i < na else 1
             for x in range(x0, x1 + 1):
                 for y in range(y0, y1 + 1):
