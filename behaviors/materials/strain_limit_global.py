@@ -254,6 +254,22 @@ class GlobalStrainStep:
             return np.zeros(0), np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros((0, 3))
         return tuple(np.concatenate([x[i] for x in cs]) for i in range(4))
 
+    def _weighted(self, J, Wb):
+        """J W: the rows' Jacobian times the inverse masses (``Wb`` the block matrix where the
+        contacts' filters make it one, else the diagonal ``w3``)."""
+        return (J @ Wb) if Wb is not None else J.multiply(self.w3[None, :])
+
+    def _freeze(self, rows):
+        """Remember the edges of the solved ``rows`` (``e_idx[rows]``) as the next pass's
+        frozen set, whose re-solve reuses this pass's factor; returns them."""
+        frozen = self.e_idx[rows].copy()
+        self._mark[:] = False
+        self._mark[frozen] = True
+        self.f_idx = np.zeros(len(frozen), np.int64)
+        self.f_c = np.zeros(len(frozen))
+        self.f_n = np.zeros((len(frozen), 3))
+        return frozen
+
     def _jacobian(self, w, e_idx, e_n, ne, cv, ccf, cn, nc):
         cap = 6 * ne + 12 * nc
         ri = np.empty(cap, np.int64)
@@ -457,8 +473,8 @@ class GlobalStrainStep:
                 if nf == len(frozen):
                     J = self._jacobian(w, self.f_idx, self.f_n, nf, *_NO_CONTACTS)
                     dlam = lu.solve(np.maximum(self.f_c[:nf], 0.0))
-                    JW = (J @ Wb) if Wb is not None else J.multiply(self.w3[None, :])
-                    self._move(p, w, tol, worst, (JW.T @ dlam).reshape(-1, 3), bool(kinds))
+                    dx = self._weighted(J, Wb).T @ dlam
+                    self._move(p, w, tol, worst, dx.reshape(-1, 3), bool(kinds))
                     self.stats["passes"] += 1
                     continue
             ne, _, _ = edge_rows(p, w, self.edges, self.limit, self.sel, near, tol,
@@ -467,14 +483,8 @@ class GlobalStrainStep:
                 J = self._jacobian(w, self.e_idx, self.e_n, ne, *_NO_CONTACTS)
                 lu, rows, J, dlam = self._pivot(J, self.e_c[:ne], self.limit[self.e_idx[:ne]],
                                                 alpha, Wb, pivots, tol, update=update)
-                frozen = self.e_idx[rows].copy()
-                self._mark[:] = False
-                self._mark[frozen] = True
-                self.f_idx = np.zeros(len(frozen), np.int64)
-                self.f_c = np.zeros(len(frozen))
-                self.f_n = np.zeros((len(frozen), 3))
-                JW = (J @ Wb) if Wb is not None else J.multiply(self.w3[None, :])
-                dx = JW.T @ dlam
+                frozen = self._freeze(rows)
+                dx = self._weighted(J, Wb).T @ dlam
             elif filt or not kinds:
                 J = self._jacobian(w, self.e_idx, self.e_n, ne, *_NO_CONTACTS)
                 rows = np.arange(ne)
@@ -482,14 +492,8 @@ class GlobalStrainStep:
                 if keep is not None:
                     rows, J = rows[keep], J[keep]
                 dlam = lu.solve(self.e_c[rows])
-                frozen = self.e_idx[rows].copy()
-                self._mark[:] = False
-                self._mark[frozen] = True
-                self.f_idx = np.zeros(len(frozen), np.int64)
-                self.f_c = np.zeros(len(frozen))
-                self.f_n = np.zeros((len(frozen), 3))
-                JW = (J @ Wb) if Wb is not None else J.multiply(self.w3[None, :])
-                dx = JW.T @ dlam
+                frozen = self._freeze(rows)
+                dx = self._weighted(J, Wb).T @ dlam
             elif pivots:  # rows, as one LCP with the edges, factorised every pass
                 # one row per vertex in contact with a collider: its most closed contact's
                 # outward normal n, -(C + n . u) <= 0 with a multiplier >= 0 (pushing)
