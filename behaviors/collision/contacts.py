@@ -458,14 +458,14 @@ def _row_buffers(g, kind, n):
     return tuple(a[:n] for a in b)
 
 
-def _scratch(g, key, shape):
-    """An array of ``shape`` (float64) kept in the group under ``key`` (``REUSE_BUFFERS``), or
-    None (the callee allocates) when not reusing."""
+def _scratch(g, key, shape, dtype=np.float64):
+    """An array of ``shape`` and ``dtype`` kept in the group under ``key`` (``REUSE_BUFFERS``),
+    or None (the callee allocates) when not reusing."""
     if not REUSE_BUFFERS:
         return None
     a = g.bufs.get(key)
-    if a is None or a.shape != shape:
-        a = g.bufs[key] = np.empty(shape)
+    if a is None or a.shape != shape or a.dtype != dtype:
+        a = g.bufs[key] = np.empty(shape, dtype)
     return a
 
 
@@ -475,12 +475,18 @@ def _use_grid(g):
     return COLUMN_GRID and len(g.tris) >= COLUMN_GRID_MIN_TRIS
 
 
-def _iscratch(g, key, n):
-    """An int64 array of ``n`` entries kept in the group under ``key``."""
-    a = g.bufs.get(key)
-    if a is None or a.shape[0] != n:
-        a = g.bufs[key] = np.empty(n, np.int64)
-    return a
+def _ordered(g, cand, order, out, n_a, a, b=None):
+    """The candidate pairs ``cand`` in ``order`` ("index", "morton" or "zorder": see
+    ``CANONICAL_ORDER``). ``a`` / ``b``: (scratch key, lo, hi) of the first / second
+    primitives' boxes, ``n_a`` the first's count; ``b`` None for self pairs."""
+    ra = rb = None
+    if order != "index":
+        ra = bp.morton_rank(a[1], a[2], _scratch(g, a[0], (len(a[1]),), np.int64))
+        rb = ra if b is None else bp.morton_rank(b[1], b[2],
+                                                 _scratch(g, b[0], (len(b[1]),), np.int64))
+    if order == "zorder":
+        return bp.zsort_pairs(cand, ra, rb, b is None, out)
+    return bp.sort_pairs(cand, n_a, out, ra, rb)
 
 
 def _st_group(g, elem):
@@ -539,14 +545,8 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
                                         _scratch(g, "st", (2 * nt - 1, 14)))
             cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=out, st_a=sv, st_b=st)
         if order:
-            ra = rb = None
-            if order != "index":
-                ra = bp.morton_rank(lo_v, hi_v, _iscratch(g, "rank_v", nv))
-                rb = bp.morton_rank(lo_t, hi_t, _iscratch(g, "rank_t", nt))
-            if order == "zorder":
-                cand = bp.zsort_pairs(cand, ra, rb, False, out)
-            else:
-                cand = bp.sort_pairs(cand, nv, out, ra, rb)
+            cand = _ordered(g, cand, order, out, nv, ("rank_v", lo_v, hi_v),
+                            ("rank_t", lo_t, hi_t))
         n = len(cand)
         if n:
             rows, nrm, tgt, mu, one = _row_buffers(g, "vf", n)
@@ -581,13 +581,7 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
                 if spacetime else None
             cand = bp.query_self(be, g.edges, st=se, out=out)
         if order:
-            ra = None
-            if order != "index":
-                ra = bp.morton_rank(lo_e, hi_e, _iscratch(g, "rank_e", ne))
-            if order == "zorder":
-                cand = bp.zsort_pairs(cand, ra, ra, True, out)
-            else:
-                cand = bp.sort_pairs(cand, ne, out, ra, ra)
+            cand = _ordered(g, cand, order, out, ne, ("rank_e", lo_e, hi_e))
         n = len(cand)
         if n:
             rows, nrm, tgt, mu, _ = _row_buffers(g, "ee", n)
