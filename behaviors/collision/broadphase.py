@@ -2035,16 +2035,19 @@ def _tree_fallback(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out
 
 
 def _col_work(out, key, shape, dtype=np.float64):
-    """A scratch array of ``shape`` kept in the buffer ``out`` under ``key`` (grown by half
-    when too small; a view of the size asked), or a new one without a buffer."""
+    """A scratch array of ``shape`` kept in the buffer ``out`` under ``key``: a flat buffer
+    grown by half when too small, returned as a C-contiguous view of its first elements in the
+    shape asked (any of its dimensions may change between calls), or a new array without a
+    buffer."""
     if out is None:
         return np.empty(shape, dtype=dtype)
     ws = out.__dict__.setdefault("_col_ws", {})
     a = ws.get(key)
-    if a is None or a.shape[0] < shape[0] or a.shape[1:] != tuple(shape[1:]):
-        n = max(int(shape[0]), int(1.5 * a.shape[0]) if a is not None else 0)
-        a = ws[key] = np.empty((n,) + tuple(shape[1:]), dtype=dtype)
-    return a[:shape[0]]
+    size = int(np.prod(shape, dtype=np.int64))
+    if a is None or a.shape[0] < size:
+        a = ws[key] = np.empty(max(size, int(1.5 * a.shape[0]) if a is not None else 0),
+                               dtype=dtype)
+    return a[:size].reshape(shape)
 
 
 def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
