@@ -188,6 +188,13 @@ class StrainLimitParams(ConstraintParams):
         "strain_limit_global.py) too, one interleaved run, 24 frames: defaults 6.64 % "
         "(658 ms); global_update 0 with COLAMD (the step before) 1.10 % (3417 ms, 5.2x); "
         "global_update 16 with the symmetric ordering 1.10 % (2457 ms, 3.7x), 0 penetrations.")
+    global_tolerance: float | None = Field(
+        None, ge=0, le=10.0, description="Accepted relative excess over the limit in the "
+        "global step (its stopping test and the pivots' gap); null = tolerance.")
+    global_every: Literal["substep", "frame"] = Field(
+        "substep", description="When the global step runs: every substep, or only in the "
+        "last substep of each frame (the frames' positions hold the limit, the substeps "
+        "between them only the Gauss-Seidel limit).")
     global_alpha: float = Field(
         1e-3, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
         "step's system, relative to its diagonal [-]. An inextensible triangle mesh has about "
@@ -285,9 +292,14 @@ class StrainLimitConstraint(ConstraintBehavior):
         the contacts' 50) and before their CCD safe step (``after_finalize``)."""
         if d.glob is None:
             return
+        if (self.params.global_every == "frame"
+                and (ctx.substep + 1) % max(int(ctx.model.substeps), 1)):
+            return
         n0 = d.glob.stats["passes"]
         d.glob.run(p, ctx.model.particle_inv_mass, ctx.state.fields.get("contacts"),
-                   self.params.global_passes, self.params.tolerance, self.params.global_near,
+                   self.params.global_passes,
+                   (self.params.tolerance if self.params.global_tolerance is None
+                    else self.params.global_tolerance), self.params.global_near,
                    self.params.global_alpha, self.params.global_contacts,
                    self.params.global_pivots, self.params.global_update)
         ctx.stats["max_global_strain_passes"] = max(ctx.stats.get("max_global_strain_passes", 0),
