@@ -190,11 +190,36 @@ class StrainLimitParams(ConstraintParams):
         "global_update 16 with the symmetric ordering 1.10 % (2457 ms, 3.7x), 0 penetrations.")
     global_tolerance: float | None = Field(
         None, ge=0, le=10.0, description="Accepted relative excess over the limit in the "
-        "global step (its stopping test and the pivots' gap); null = tolerance.")
+        "global step (its stopping test and the pivots' gap); null = tolerance (1e-3). The "
+        "step converges linearly (about 0.8 of the excess left per pass on the 64 x 64 "
+        "drop's impact substeps: the edges rotate over a pass, and a smaller global_alpha "
+        "diverges), so a looser stop saves passes. Measured with inextensible_max_strain "
+        "0.01, global_passes 20, global_near 0.02, 'rows' (graphs/bench/cloth_strain.py, "
+        "24 frames, one interleaved run, NUMBA_NUM_THREADS=1, CPU per frame over the second "
+        "half): cloth_on_sphere at the defaults 6.63 % (484 ms); global_pivots 10 at 1e-3 "
+        "1.10 % (2286 ms, 4.7x); global_pivots 2 at 0.005 1.50 % (1392 ms, 2.9x); "
+        "skirt_walk 5.00 / 1.08 / 1.15 % (65 ms each: the Gauss-Seidel limit holds there); "
+        "the 128 x 128 drop (12 frames) 15.93 % (4787 ms) / -- / 9.37 % (last frame 2.37 %, "
+        "21490 ms, 4.5x; global_pivots 10 at 1e-3 was 8.20 % at 11x in another run). No "
+        "penetrations. Tried and left out (they did not pay): chord passes re-solving the "
+        "last factorised active set with its factor (1507 against 1392 ms), a warm start "
+        "from the last substep's active set (within the noise), the step at 0.01 over a "
+        "Gauss-Seidel limit kept at 0.05 (1453 against 1445 ms), Nucleus iterations 8 "
+        "instead of 15 with the step (14 frames: 2581 against 2165 ms, the step has more "
+        "to do).")
     global_every: Literal["substep", "frame"] = Field(
         "substep", description="When the global step runs: every substep, or only in the "
         "last substep of each frame (the frames' positions hold the limit, the substeps "
-        "between them only the Gauss-Seidel limit).")
+        "between them only the Gauss-Seidel limit). One interleaved run (as for "
+        "global_tolerance; inextensible_max_strain 0.01, global_passes 20, global_near 0.02, "
+        "'rows', global_pivots 2, global_tolerance 0.005): cloth_on_sphere 'substep' 1.50 % "
+        "(1387 ms, 2.9x the defaults' 483 ms), 'frame' 1.84 % (1061 ms, 2.2x), 'frame' with "
+        "inextensible_joint_iterations 3 1.50 % (1084 ms, 2.2x); skirt_walk 1.15 / 1.15 / "
+        "1.41 % (52-54 ms, the defaults 5.00 % at 52 ms); the 128 x 128 drop (12 frames, "
+        "'frame' with 3 joint iterations) 11.71 % (last frame 5.81 %) at 13046 ms (2.7x the "
+        "defaults' 4787 ms). No penetrations. Cheaper still did not hold (another run, "
+        "'frame' with 3 joint iterations: 1.50 % at 1060 ms, defaults 467 ms): "
+        "global_passes 10 3.91 % (1081 ms), global_pivots 1 4.07 % (1108 ms).")
     global_alpha: float = Field(
         1e-3, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
         "step's system, relative to its diagonal [-]. An inextensible triangle mesh has about "
