@@ -319,6 +319,31 @@ def _gap_bound(x, rows, nrm, target, is_vf, r):
     return min(p0, p1) - max(p2, p3) - target[r]
 
 
+@njit(cache=True, inline="always")
+def _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reach, mark, sel, r,
+              count, ns, dl, top, dgap):
+    """The visit of row r by ``lag_rows_live`` / ``lag_rows_sel``: a live row (normal force
+    > 0, or gap bound below ``reach`` + ``LIVE_SLACK``) is lagged, marked and appended to
+    ``sel`` at ``ns``; any other gets lam 0 and is unmarked. Returns the running (active
+    count, live count, largest |change| of a normal force, largest normal force, largest
+    change over stiffness)."""
+    old = lam[r]
+    if old > 0.0 or _gap_bound(x, rows, nrm, target, is_vf, r) < reach + LIVE_SLACK:
+        count += _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
+        mark[r] = 1
+        sel[ns] = r
+        ns += 1
+        d = abs(lam[r] - old)
+        dl = max(dl, d)
+        top = max(top, lam[r])
+        if kr[r] > 0.0:
+            dgap = max(dgap, d / kr[r])
+    else:
+        lam[r] = 0.0
+        mark[r] = 0
+    return count, ns, dl, top, dgap
+
+
 @njit(cache=True)
 def lag_rows_live(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reach, mark,
                   sel):
@@ -334,20 +359,9 @@ def lag_rows_live(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, 
     ns = 0
     dl, top, dgap = 0.0, 0.0, 0.0
     for r in range(rows.shape[0]):
-        old = lam[r]
-        if old > 0.0 or _gap_bound(x, rows, nrm, target, is_vf, r) < reach + LIVE_SLACK:
-            count += _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
-            mark[r] = 1
-            sel[ns] = r
-            ns += 1
-            d = abs(lam[r] - old)
-            dl = max(dl, d)
-            top = max(top, lam[r])
-            if kr[r] > 0.0:
-                dgap = max(dgap, d / kr[r])
-        else:
-            lam[r] = 0.0
-            mark[r] = 0
+        count, ns, dl, top, dgap = _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf,
+                                             coef, kr, lam, reach, mark, sel, r, count, ns, dl,
+                                             top, dgap)
     return count, ns, dl, top, dgap
 
 
@@ -366,20 +380,9 @@ def lag_rows_sel(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r
     dl, top, dgap = 0.0, 0.0, 0.0
     for i in range(ns_in):
         r = sel[i]
-        old = lam[r]
-        if old > 0.0 or _gap_bound(x, rows, nrm, target, is_vf, r) < reach + LIVE_SLACK:
-            count += _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
-            mark[r] = 1
-            sel[ns] = r
-            ns += 1
-            d = abs(lam[r] - old)
-            dl = max(dl, d)
-            top = max(top, lam[r])
-            if kr[r] > 0.0:
-                dgap = max(dgap, d / kr[r])
-        else:
-            lam[r] = 0.0
-            mark[r] = 0
+        count, ns, dl, top, dgap = _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf,
+                                             coef, kr, lam, reach, mark, sel, r, count, ns, dl,
+                                             top, dgap)
     return count, ns, dl, top, dgap
 
 
