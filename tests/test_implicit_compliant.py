@@ -1,0 +1,65 @@
+"""Compliant kinematics as momentum-free unknowns of the implicit solve (issue #11, Loki
+supplement section 1) and their own block-diagonal preconditioner block (``compliant_solve``),
+on graphs/examples/pinch.yaml with ``compliant_kinematics: energy``. Figures:
+graphs/bench/implicit_compliant.py."""
+
+import shutil
+
+import numpy as np
+
+from conftest import EXAMPLES
+from lokigraph.api import compile_file
+from lokigraph.behaviors.collision.intersect import intersect_meshes
+from lokigraph.run import Simulation
+
+FRAMES = 26  # through the closure of the pinch (frame 25)
+
+
+def _pinch(tmp_path, mode):
+    shutil.copy(EXAMPLES / "lid_soft.npy", tmp_path / "lid_soft.npy")
+    text = (EXAMPLES / "pinch.yaml").read_text().replace(
+        "lokigraph: 1\n", "lokigraph: 1\nsolver: implicit\ngraph_overrides: {implicit_solver: "
+        f"{{compliant_kinematics: energy, compliant_solve: {mode}}}}}\n", 1)
+    p = tmp_path / f"pinch_{mode}.yaml"
+    p.write_text(text)
+    c = compile_file(p)
+    return c, Simulation(c)
+
+
+def test_compliant_unknowns_block_preconditioner(tmp_path):
+    """The compliant lid's vertices are unknowns whose Newton-matrix rows hold only their
+    diagonal block (goal spring K I + the contact rows' blocks): 'block' solves them by its
+    inverse apart from CG, 'cg' keeps them in the block-Jacobi CG, 'cg_identity' gives them no
+    preconditioner block. Without it CG needs ~10x the iterations (measured over 60 frames:
+    222,724 against 22,504, 500-iteration cap reached, worst relative residual 0.31); with it
+    in or out of CG the same (22,483 'cg'), and the two solves agree on the lid's recession and
+    keep the cloth calm with no intersection. Over these 26 frames (measured): block 11,308,
+    cg 10,603, cg_identity 179,388 CG iterations; the recession at closure 8.00 mm with each."""
+    runs = {m: _pinch(tmp_path, m) for m in ("block", "cg", "cg_identity")}
+    cg = {m: 0 for m in runs}
+    out = {m: {"vmax": [], "pen": [], "recede": []} for m in runs}
+    for _ in range(FRAMES):
+        for m, (c, sim) in runs.items():
+            st = sim.step_frame()
+            cg[m] += st.get("cg_iterations", 0)
+            cl, fl, lid = (c.scene.element(n) for n in ("cloth", "floor", "lid"))
+            q, v = sim.state.particle_q, sim.state.particle_qd
+            assert np.isfinite(q).all()
+            out[m]["vmax"].append(np.linalg.norm(v[cl.vertex_slice], axis=1).max())
+            n, _ = intersect_meshes([(q[cl.vertex_slice], cl.geometry.triangles),
+                                     (q[fl.vertex_slice], fl.geometry.triangles),
+                                     (q[lid.vertex_slice], lid.geometry.triangles)],
+                                    touching=False)
+            out[m]["pen"].append(n)
+            comp = c.model.particle_compliant[lid.vertex_slice]
+            anim = sim.control.kinematic_q[lid.vertex_slice]
+            out[m]["recede"].append((q[lid.vertex_slice][comp, 1] - anim[comp, 1]).max())
+    print(f"compliant pinch, CG iterations over {FRAMES} frames: {cg}; recession at frame 25 "
+          + ", ".join(f"{m} {1000 * o['recede'][23]:.2f} mm" for m, o in out.items()))
+    assert cg["cg_identity"] > 5 * cg["block"]
+    assert cg["block"] < 1.5 * cg["cg"]
+    for m in ("block", "cg"):
+        assert max(out[m]["pen"]) == 0
+        assert max(out[m]["vmax"][3:]) < 0.3  # the Nucleus test's bound
+        assert out[m]["recede"][23] > 0.006  # the compliant centre made room for the cloth
+    assert abs(out["block"]["recede"][23] - out["cg"]["recede"][23]) < 5e-4
