@@ -97,8 +97,9 @@ compliant surfaces recede far (Field descriptions). The compliant unknowns carry
 and no energy stencil (the supplement's "new vertices" of eq. 4 are the kinematic body's own
 vertices here, the same unknowns): their rows of the Newton matrix hold only their diagonal
 3x3 block (the goal spring plus the contact rows' block-diagonal terms), so
-``compliant_solve: block`` (the default with ``energy``) solves them apart from CG by that
-block's inverse, exactly, and CG runs on the cloth's unknowns alone; measured
+``compliant_solve: block`` solves them apart from CG by that
+block's inverse, exactly, and CG runs on the cloth's unknowns alone (opt-in; ``cg``, the
+default, keeps them in the block-Jacobi CG, whose preconditioner holds the same blocks); measured
 (graphs/bench/implicit_compliant.py) without a preconditioner block of their own
 (``cg_identity``) the pinch needs 9.9x the CG iterations, with it in CG (``cg``) or apart
 (``block``) the same.
@@ -351,9 +352,20 @@ class ImplicitParams(Params):
         "figures are with hard_multipliers: always; with converged (the default): pinch 0.32 / "
         "0.267 m/s, sleeve_pinch 0.43 / 0.21 m/s, sleeve_elbow 1.08 / 4.93 m/s (25 frames), "
         "trouser_knee 2.19 / 1.72 m/s but with energy 10 trouser-leg intersecting pairs at "
-        "frame 24: hence dirichlet by default.")
+        "frame 24: hence dirichlet by default. Remeasured since (graphs/bench/implicit_knee.py, "
+        "whole runs, dirichlet / energy): pinch 0.355 / 0.001 m/s from frame 5 (bound 0.3), "
+        "sleeve_pinch 0.458 / 0.140 m/s (bound 0.3), 0 intersecting pairs in each; but "
+        "trouser_knee 1.912 m/s in frames 37-48 (bound 1.65) / 2.45 m/s by frame 18 and "
+        "intersecting pairs from frame 24 (54, then thousands), sleeve_elbow 0.897 m/s near the "
+        "joint (bound 0.73) / pairs from frame 22. Cause measured on the knee: the compliant "
+        "vertices, each held by its own goal spring only (K ~7 N/m per vertex here), recede "
+        "independently and the compliant surface crumples: 2 inverted triangles at frame 5, 22 at "
+        "16, 97 at 23, recession up to 6.4 cm by frame 22 and 14 cm at 23. With the painted "
+        "stiffness 10x (2e5) no explosion, but the knee still intersects from frame 28 (40 "
+        "pairs) and the elbow keeps 0.888 m/s near the joint (0 pairs, 1.284 m/s overall, "
+        "bound 1.47).")
     compliant_solve: Literal["block", "cg", "cg_identity"] = Field(
-        "block", description="With compliant_kinematics: energy, how the linear solve of a "
+        "cg", description="With compliant_kinematics: energy, how the linear solve of a "
         "Newton iteration treats the compliant unknowns (Loki supplement section 1: momentum-free "
         "unknowns whose Newton-matrix rows hold only their diagonal 3x3 block, the goal spring "
         "K I plus the contact rows' blocks, which are block-diagonal): 'block' solves them "
@@ -369,7 +381,10 @@ class ImplicitParams(Params):
         "relative residual 0.31), 197 / 191 / 271 ms; sleeve_pinch (the cloth's CG at its cap "
         "in most iterations) 1,522,806 / 1,440,383 / 1,620,014, 336 / 322 / 359, 1266 / "
         "1233 / 1311 ms; 0 intersecting pairs with each, lid recession at closure 8.00 mm "
-        "with each (tests/test_implicit_compliant.py).")
+        "with each (tests/test_implicit_compliant.py). 'cg' by default (the solve before, "
+        "bitwise): with 'block' the pinch's first frames take more Newton iterations per "
+        "substep (frames 3 / 4: 7.75 / 6.25 against 5.2 / 3.8; "
+        "tests/test_implicit_pinch.py bounds them at 6).")
     compliant_tangential: Literal["free", "hard"] = Field(
         "free", description="With compliant_kinematics: energy: 'free' the goal spring of a "
         "compliant vertex is the same in every direction; 'hard' it is hard_stiffness times "
