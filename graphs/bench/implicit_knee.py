@@ -8,7 +8,8 @@ measure them with Nucleus.
     NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_knee.py sleeve_pinch \
         compliant_kinematics=energy
 
-Scenes: knee, pinch, sleeve_pinch, sleeve_elbow. Extra ``k=v`` arguments become
+Scenes: knee, pinch, sleeve_pinch, sleeve_elbow. ``scale=10`` multiplies the painted compliant
+stiffness (a measurement of compliant_kinematics: energy, see the end). Extra ``k=v`` arguments become
 ``graph_overrides: {implicit_solver: {k: v}}``. Columns: intersecting cloth-body pairs, cloth
 self pairs, largest cloth speed [m/s], Newton iterations per substep (mean, largest), line-search
 halvings, the projection pass's largest move [m] and the contact rows' normal complementarity
@@ -60,6 +61,14 @@ from the torso rising at 0.15 m/s, their velocities flipping direction from fram
 (down 0.33, up 0.46, down 0.35, up 0.28 m/s over frames 20-23), Newton at its 20 cap in every
 substep: the inextensible sleeve jammed between the arm and the torso, both Dirichlet in the
 solve; the projection pass's torso recession (2-12 mm) comes later, frames 23-25.
+
+compliant_kinematics=energy (the compliant vertices unknowns of the solve), whole runs against
+the defaults (dirichlet) above: pinch 0.001 m/s from frame 5, sleeve_pinch 0.140 m/s (both
+under 0.3, 0 pairs); knee 2.45 m/s by frame 18 and intersecting pairs from frame 24 (54, then
+thousands; run stopped at frame 37); sleeve_elbow pairs from frame 22 (8, then hundreds;
+stopped at frame 34). With compliant_solve=block scale=10: knee pairs from frame 28 (40; 0.70
+m/s), sleeve_elbow 0 pairs, 1.284 m/s (frame 45; bound 1.47), 0.888 m/s near the joint (frame
+39; bound 0.73). The knee's compliant surface crumples: graphs/bench/implicit_compliant_diag.py.
 """
 
 from __future__ import annotations
@@ -98,16 +107,22 @@ def scene_text(name, overrides=None):
     return text.replace("lokigraph: 1\n", head, 1)
 
 
-def run(name, frames=None, overrides=None, tmp=None, verbose=False):
+def run(name, frames=None, overrides=None, tmp=None, verbose=False, scale=1.0):
     """Per frame: cloth-body pairs ``pen``, cloth self pairs ``self``, largest cloth speed
-    ``vmax`` and the frame's solver stats; ``cpu_s`` the process time of the steps."""
+    ``vmax`` and the frame's solver stats; ``cpu_s`` the process time of the steps. ``scale``
+    multiplies the painted compliant stiffness (the maps, or the knee's 2e4)."""
     yaml, maps, cloth_name, bodies, nf = SCENES[name]
     frames = nf if frames is None else frames
     tmp = Path(tmp or tempfile.mkdtemp())
     for m in maps:
         shutil.copy(EX / m, tmp / m)
+        if scale != 1.0:
+            np.save(tmp / m, np.load(tmp / m) * scale)
     p = tmp / f"{name}_implicit.yaml"
-    p.write_text(scene_text(name, overrides))
+    text = scene_text(name, overrides)
+    if scale != 1.0:
+        text = text.replace("value: 2.0e4", f"value: {2.0e4 * scale:g}")
+    p.write_text(text)
     c = compile_file(p)
     sim = Simulation(c)
     cl = c.scene.element(cloth_name)
@@ -174,4 +189,5 @@ if __name__ == "__main__":
     args = sys.argv[2:]
     frames = int(args.pop(0)) if args and args[0].isdigit() else None
     ov = dict(a.split("=", 1) for a in args)
-    report(name, run(name, frames, ov, verbose=True))
+    scale = float(ov.pop("scale", 1.0))  # scale=10: the painted compliant stiffness x 10
+    report(name, run(name, frames, ov, verbose=True, scale=scale))
