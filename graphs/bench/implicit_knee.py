@@ -9,8 +9,8 @@ measure them with Nucleus.
         compliant_kinematics=energy
 
 Scenes: knee, pinch, sleeve_pinch, sleeve_elbow. ``scale=10`` multiplies the painted compliant
-stiffness (a measurement of compliant_kinematics: energy, see the end). Extra ``k=v`` arguments become
-``graph_overrides: {implicit_solver: {k: v}}``. Columns: intersecting cloth-body pairs, cloth
+stiffness (a measurement of compliant_kinematics: energy, see the end). Extra ``k=v``
+arguments become ``graph_overrides: {implicit_solver: {k: v}}``. Columns: intersecting cloth-body pairs, cloth
 self pairs, largest cloth speed [m/s], Newton iterations per substep (mean, largest), line-search
 halvings, the projection pass's largest move [m] and the contact rows' normal complementarity
 residual at the Newton solution (``max_complementarity`` [mm]).
