@@ -184,19 +184,21 @@ class LokiRun:
     framework = "lokigraph"
 
     def __init__(self, scene: ClothSphere, substeps: int, iterations: int, label: str = "",
-                 threads: int | None = None):
+                 threads: int | None = None, overrides: dict | None = None):
         from lokigraph.bench.sweep import _apply
         from lokigraph.compile import compile_scene
         from lokigraph.run import Simulation
         from lokigraph.scene import load_scene
 
-        sc = _apply(load_scene(scene.path), {"substeps": substeps, "iterations": iterations})
+        sc = _apply(load_scene(scene.path), {"substeps": substeps, "iterations": iterations,
+                                             **(overrides or {})})
         self.sim = Simulation(compile_scene(sc))
         self.sim._steps = [b for b in self.sim._steps
                            if type(b.behavior).__name__ != "PenetrationCheck"]
         self.scene = scene
         self.threads = threads
-        self.setting = f"{substeps}x{iterations}" + (f"@{threads}t" if threads else "") + label
+        self.setting = (f"{substeps}x{iterations}" + (f"@{threads}t" if threads else "")
+                        + "".join(f" {k}={v}" for k, v in (overrides or {}).items()) + label)
         self.solver = "nucleus"
 
     def step(self):
@@ -458,8 +460,10 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128], choices=sorted(SCENES))
     ap.add_argument("--frames", type=int, default=None, help="frames per run (default: scene's)")
-    ap.add_argument("--loki", default=None, help="lokigraph settings SUBxITER[@THREADS],... "
-                    f"(default {','.join(f'{s}x{i}' for s, i in LOKI_SETTINGS)})")
+    ap.add_argument("--loki", default=None, help="lokigraph settings SUBxITER[@THREADS]"
+                    "[+NODE.PARAM=VALUE...],... (graph overrides, e.g. "
+                    "2x15+collisions.final_rounds=1; default "
+                    f"{','.join(f'{s}x{i}' for s, i in LOKI_SETTINGS)})")
     ap.add_argument("--newton", default=None, help="Style3D settings SUBxITER,... (default "
                     f"{','.join(f'{s}x{i}' for s, i in NEWTON_SETTINGS)}); 'none' to skip")
     ap.add_argument("--newton-et", type=float, default=1000.0,
@@ -484,8 +488,10 @@ def main(argv=None):
     ap.add_argument("--out", default="bench_out/peer", help="output folder")
     args = ap.parse_args(argv)
     parse = lambda s: [tuple(int(v) for v in x.split("x")) for x in s.split(",")]  # noqa: E731
-    loki = ([tuple(int(v) for v in x.replace("@", "x").split("x")) for x in args.loki.split(",")]
-            if args.loki else LOKI_SETTINGS)
+    loki = ([tuple(int(v) for v in x.split("+")[0].replace("@", "x").split("x"))
+             for x in args.loki.split(",")] if args.loki else LOKI_SETTINGS)
+    extra = ([dict(kv.split("=", 1) for kv in x.split("+")[1:]) for x in args.loki.split(",")]
+             if args.loki else [{}] * len(loki))
     newt = [] if args.newton == "none" else (parse(args.newton) if args.newton
                                              else NEWTON_SETTINGS)
     out_dir = Path(args.out)
@@ -537,7 +543,8 @@ def main(argv=None):
         for n in args.sizes:
             sc = ClothSphere(SCENES[n])
             frames = args.frames or sc.frames
-            runs = [LokiRun(sc, *st[:2], threads=st[2] if len(st) > 2 else None) for st in loki]
+            runs = [LokiRun(sc, *st[:2], threads=st[2] if len(st) > 2 else None, overrides=ov)
+                    for st, ov in zip(loki, extra)]
             if newton is not None:
                 for s, i in newt:
                     try:
