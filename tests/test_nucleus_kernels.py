@@ -795,3 +795,32 @@ def test_colored_parallel_matches_sequential_at_production_size():
         _all_sweeps(b, lb, seq=True)
     np.testing.assert_allclose(a.p, b.p, atol=1e-11)
     assert K.residual_stretch(a.p, a.edges, a.L)[0] < 0.2 * before
+
+
+def test_one_thread_runs_the_sequential_sweep_bitwise_equal():
+    """On one numba thread ``xpbd.sequential_sweep`` picks the sequential kernel for every set:
+    the coloured sweep's ``prange`` then runs each colour's rows in storage order, the
+    sequential kernel's order, so the positions and multipliers are bitwise equal (checked
+    here), and only the per-colour launches are saved."""
+    import numba
+
+    keep = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        assert xpbd.sequential_sweep(False) and xpbd.sequential_sweep(True)
+        a = Cloth(32, noise=0.3, seed=15, curvature=1.0)
+        b = Cloth(32, noise=0.3, seed=15, curvature=1.0)
+        assert len(a.eptr) > 3 and len(a.qptr) > 3
+        la, lb = _lams(a), _lams(b)
+        p0 = a.p.copy()
+        for _ in range(5):
+            _all_sweeps(a, la, seq=False)
+            _all_sweeps(b, lb, seq=True)
+        assert np.abs(a.p - p0).max() > 1e-3  # the sweeps moved the sheet
+        assert np.array_equal(a.p, b.p)
+        for key in la:
+            assert np.array_equal(la[key], lb[key])
+    finally:
+        numba.set_num_threads(keep)
+    assert xpbd.sequential_sweep(True)
+    assert xpbd.sequential_sweep(False) == (keep == 1)

@@ -17,7 +17,8 @@ from lokigraph.components.core import Dynamic
 from lokigraph.components.materials import DiscreteShell, Rod
 
 from .. import topology as T
-from ..solvers.nucleus.xpbd import _INF, _LEN_EPS, _PI, _REL_EPS, _hot, _nudge, _xpbd_step, residual
+from ..solvers.nucleus.xpbd import (_INF, _LEN_EPS, _PI, _REL_EPS, _hot, _nudge, _xpbd_step,
+                                    residual, sequential_sweep)
 from .common import Packed, _rest
 from .rod import solved_directly
 from .shear import project_angle, project_angle_seq, residual_angle, rest_angles
@@ -302,11 +303,11 @@ class BendConstraint(ConstraintBehavior):
         w = ctx.model.particle_inv_mass
         q = d.parts.get("quads")
         if q is not None:
-            fn = project_dihedral_seq if q.sequential else project_dihedral
+            fn = project_dihedral_seq if sequential_sweep(q.sequential) else project_dihedral
             fn(p, w, q.idx, q.rest, q.alpha, q.alpha2, q.lam, ctx.dt, q.color_ptr)
         c = d.parts.get("curves")
         if c is not None:
-            fn = project_angle_seq if c.sequential else project_angle
+            fn = project_angle_seq if sequential_sweep(c.sequential) else project_angle
             fn(p, w, c.idx, c.rest, c.alpha, c.lam, ctx.dt, c.color_ptr)
 
     def residual(self, ctx, d, p):

@@ -22,7 +22,7 @@ from lokigraph.components.materials import DiscreteShell, Rod, Volume
 from lokigraph.geometry import triangle_areas
 
 from .. import topology as T
-from ..solvers.nucleus.xpbd import _INF, _LEN_EPS, _hot, _nudge, residual
+from ..solvers.nucleus.xpbd import _INF, _LEN_EPS, _hot, _nudge, residual, sequential_sweep
 from .common import Packed, _concat, _rest
 from .rod import solved_directly
 from .volume import rest_tet_volumes
@@ -307,12 +307,13 @@ def _project_edges(ctx, d, p, alpha2=None):
     instead of ``d.alpha2`` (the stretch set's Nucleus compliances)."""
     w = ctx.model.particle_inv_mass
     a2 = d.alpha2 if alpha2 is None else alpha2
+    seq = sequential_sweep(d.sequential)
     if d.beta is not None:
-        fn = project_stretch_damped_seq if d.sequential else project_stretch_damped
+        fn = project_stretch_damped_seq if seq else project_stretch_damped
         fn(p, ctx.state.particle_q, w, d.idx, d.rest, d.alpha, a2, d.beta, d.lam,
            ctx.dt, d.color_ptr)
     else:
-        fn = project_stretch_seq if d.sequential else project_stretch
+        fn = project_stretch_seq if seq else project_stretch
         fn(p, w, d.idx, d.rest, d.alpha, a2, d.lam, ctx.dt, d.color_ptr)
 
 
@@ -489,7 +490,7 @@ class StretchConstraint(ConstraintBehavior):
 
     @staticmethod
     def _project_long_range(ctx, lr, p):
-        fn = project_stretch_seq if lr.sequential else project_stretch
+        fn = project_stretch_seq if sequential_sweep(lr.sequential) else project_stretch
         fn(p, ctx.model.particle_inv_mass, lr.idx, lr.rest, lr.alpha, lr.alpha2, lr.lam,
            ctx.dt, lr.color_ptr)
 
