@@ -19,7 +19,10 @@ x and spins about y on smooth keys (``Kinematic.interpolation: smooth``; peak sp
 speed of the spin at most 1.97 m/s): lokigraph only, against the static scene at the same
 resolution, with the CPU ratio to it (median of frames 2..N; mean) and a per-frame table (CPU,
 strain, pairs, contact rows, collider and cloth speeds). ``--moving-scenes A.yaml B.yaml`` runs
-other moving variants in the same interleaved run; ``--breakdown`` adds the CPU of the collision
+other moving variants in the same interleaved run; ``--moving-flag NAME`` runs the moving scenes
+again with the boolean ``contacts.NAME`` set True around their steps only (e.g.
+``SPACETIME_PREDICTED``); ``--rows-at-iterate`` (only) checks whether the rows of the substep's
+first detection hold the pairs of the iterate (``rows_at_iterate``); ``--breakdown`` adds the CPU of the collision
 detection, the contact projection and the CCD safe step per frame (``install_breakdown``)::
 
     .venv/bin/python graphs/bench/peer_collision.py --moving --loki 2x15 --breakdown
@@ -184,7 +187,8 @@ class LokiRun:
     framework = "lokigraph"
 
     def __init__(self, scene: ClothSphere, substeps: int, iterations: int, label: str = "",
-                 threads: int | None = None, overrides: dict | None = None):
+                 threads: int | None = None, overrides: dict | None = None,
+                 flags: dict | None = None):
         from lokigraph.bench.sweep import _apply
         from lokigraph.compile import compile_scene
         from lokigraph.run import Simulation
@@ -200,8 +204,21 @@ class LokiRun:
         self.setting = (f"{substeps}x{iterations}" + (f"@{threads}t" if threads else "")
                         + "".join(f" {k}={v}" for k, v in (overrides or {}).items()) + label)
         self.solver = "nucleus"
+        self.flags = flags or {}  # contacts module globals set around this run's steps only
 
     def step(self):
+        from lokigraph.behaviors.collision import contacts as C
+
+        keep_flags = {k: getattr(C, k) for k in self.flags}
+        for k, v in self.flags.items():
+            setattr(C, k, v)
+        try:
+            self._step()
+        finally:
+            for k, v in keep_flags.items():
+                setattr(C, k, v)
+
+    def _step(self):
         _PROF.clear()
         if self.threads:
             import numba
@@ -413,6 +430,140 @@ def rows_vs_speed(speeds=(0.0, 0.5, 1.0, 2.0, 4.0)) -> str:
     return "\n".join(lines)
 
 
+def _needed_keys(p, tris, edges, kin, target):
+    """Keys of the pairs a detection must hold at the iterate ``p``: vertex-triangle and
+    edge-edge pairs closer than ``target`` [m] (not adjacent, not both kinematic), encoded as
+    ``_row_keys`` encodes rows, and for each whether it has a kinematic vertex (a pair with
+    the collider, which the one-sided filter may drop on purpose). Brute force over static
+    boxes of ``p`` inflated by target / 2."""
+    from lokigraph.behaviors.collision import broadphase as bp
+    from lokigraph.behaviors.collision.narrowphase import _pt_tri_sq, _seg_seg_sq
+
+    n = len(p)
+    verts = np.unique(tris)
+    r = 0.5 * target
+    lo_v, hi_v = bp.primitive_boxes(p, verts, thickness=r)
+    lo_t, hi_t = bp.primitive_boxes(p, tris, thickness=r)
+    vf, ee, kv, ke = [], [], [], []
+    for i, j in bp.column_query_pairs(lo_v, hi_v, lo_t, hi_t, verts, tris).tolist():
+        q, t = verts[i], tris[j]
+        if q in t or (kin[q] and kin[t].all()):
+            continue
+        if _pt_tri_sq(*p[q], *p[t[0]], *p[t[1]], *p[t[2]])[0] < target ** 2:
+            vf.append(((q * n + t[0]) * n + t[1]) * n + t[2])
+            kv.append(bool(kin[q] or kin[t].any()))
+    lo_e, hi_e = bp.primitive_boxes(p, edges, thickness=r)
+    for i, j in bp.column_query_self(lo_e, hi_e, edges).tolist():
+        a, b = edges[i], edges[j]
+        if len({*a, *b}) < 4 or (kin[a].all() and kin[b].all()):
+            continue
+        if _seg_seg_sq(*p[a[0]], *p[a[1]], *p[b[0]], *p[b[1]])[0] < target ** 2:
+            k1, k2 = a[0] * n + a[1], b[0] * n + b[1]
+            ee.append(min(k1, k2) * n * n + max(k1, k2))
+            ke.append(bool(kin[a].any() or kin[b].any()))
+    return (np.array(vf, np.int64), np.array(ee, np.int64), np.array(kv, bool),
+            np.array(ke, bool))
+
+
+def _row_keys(vf, ee, n):
+    """int64 keys of packed vertex-face rows (p, a, b, c) and edge-edge rows (a0, a1, b0, b1)
+    of ``n`` vertices (n^4 < 2^63 up to 55,000 vertices)."""
+    kv = ((vf[:, 0] * n + vf[:, 1]) * n + vf[:, 2]) * n + vf[:, 3]
+    k1, k2 = ee[:, 0] * n + ee[:, 1], ee[:, 2] * n + ee[:, 3]
+    return kv, np.minimum(k1, k2) * n * n + np.maximum(k1, k2)
+
+
+def rows_at_iterate(frames=(7, 9, 12, 14), slack=0.005) -> str:
+    """Do the rows of the substep's first detection hold the pairs of the iterate the
+    iterations end at? The moving scene (``cloth_sphere_moving_128.yaml``, default detection)
+    is stepped to the largest of ``frames``; at the last substep of each listed frame the start
+    x, the predicted end x1 and the iterate p at the end of the iterations (before the final
+    rounds) are taken, and the contacts of that substep are detected again (on a copy of the
+    group state) over x -> x1 with: the absolute swept boxes (the default), the swept boxes in
+    the frame of the collider's translation D (x -> x1 - D: ``COLLIDER_FRAME`` of the patch
+    measured in the ``SPACETIME_PREDICTED`` comment; with and without ``slack`` [m] more
+    inflation) and the space-time boxes (``SPACETIME_PREDICTED``). Per row set: rows per cloth
+    vertex, its CPU, cloth vertices whose p lies outside what the rows hold (swept: the box of
+    its motion widened by infl_min - target/2 (+ slack); space-time: farther than that from
+    x1 along an axis), and the pairs within their target at p (brute force) that the rows
+    miss, cloth-cloth (self) and with the collider (ball; the one-sided filter drops some of
+    those on purpose: a vertex that does not project onto the triangle). Returns a markdown
+    table."""
+    import copy
+
+    from lokigraph.behaviors.collision import contacts as C
+    from lokigraph.compile import compile_scene
+    from lokigraph.run import Simulation
+    from lokigraph.scene import load_scene
+    from lokigraph.behaviors.topology import triangle_edges
+
+    sim = Simulation(compile_scene(load_scene(MOVING)))
+    cap = {}
+    step0, fin0 = C.CollisionDetect.step, C.CollisionConstraint.finalize
+
+    def step(self, ctx, d):
+        step0(self, ctx, d)
+        cap.update(x=ctx.state.particle_q.copy(), x1=d.x1.copy(), v=ctx.state.particle_qd.copy(),
+                   h=ctx.dt, d=d)
+
+    def fin(self, ctx, d, p):
+        cap["p"] = p.copy()
+        fin0(self, ctx, d, p)
+
+    C.CollisionDetect.step, C.CollisionConstraint.finalize = step, fin
+    lines = ["| frame | rows | rows / cloth vertex | detect CPU ms | cloth vertices outside "
+             "| needed pairs at p: self / ball | of them missing: self / ball |", "|" + "---|" * 7]
+    try:
+        for f in range(1, max(frames) + 1):
+            sim.step_frame()
+            if f not in frames:
+                continue
+            x, x1, p, v, h, d = (cap[k] for k in ("x", "x1", "p", "v", "h", "d"))
+            g = d.groups[0]
+            n = len(x)
+            kin = sim.model.particle_kinematic
+            dyn = g.verts[~kin[g.verts]]
+            infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
+            th = float(np.maximum(g.th_out, g.th_in)[g.verts].max())
+            allow = float(infl[g.verts].min()) - th  # infl_min - target_max / 2
+            need_v, need_e, ball_v, ball_e = _needed_keys(p, g.tris, g.edges, kin, 2.0 * th)
+            kv = g.verts[kin[g.verts]]
+            D = (x1[kv] - x[kv]).mean(axis=0)
+            dev = np.linalg.norm(p[dyn] - x1[dyn], axis=1)
+            lines.append(f"| {f} | (collider D = {np.round(1e3 * D, 1).tolist()} mm; cloth "
+                         f"|x1 - x| mean {1e3 * np.linalg.norm(x1[dyn] - x[dyn], axis=1).mean():.1f}"
+                         f" mm; |p - x1| p50 / p90 / max {1e3 * np.median(dev):.1f} / "
+                         f"{1e3 * np.percentile(dev, 90):.1f} / {1e3 * dev.max():.1f} mm) |||||")
+            sets = [("absolute swept", np.zeros(3), 0.0, False),
+                    ("collider frame", D, 0.0, False),
+                    (f"collider frame +{1e3 * slack:.0f} mm", D, slack, False),
+                    ("space-time", np.zeros(3), 0.0, True)]
+            for name, S, sl, st in sets:
+                g2 = copy.deepcopy(g)
+                c0 = time.process_time()
+                vf, ee, _ = C._detect_group(g2, x, x1 - S, infl + sl, v, h, st)
+                t = time.process_time() - c0
+                if st:
+                    out = np.abs(p[dyn] - x1[dyn]).max(axis=1) > allow
+                else:
+                    a, b = x[dyn], x1[dyn] - S
+                    q = p[dyn] - S
+                    e = np.maximum(np.minimum(a, b) - q, q - np.maximum(a, b)).max(axis=1)
+                    out = e > allow + sl
+                rv, re = _row_keys(vf[0], ee[0], n)
+                mv, me = ~np.isin(need_v, rv), ~np.isin(need_e, re)
+                miss = (f"{int((mv & ~ball_v).sum() + (me & ~ball_e).sum())} / "
+                        f"{int((mv & ball_v).sum() + (me & ball_e).sum())}")
+                lines.append(f"| {f} | {name} | {(len(vf[0]) + len(ee[0])) / len(dyn):.1f} | "
+                             f"{1e3 * t:.0f} | {int(out.sum())} / {len(dyn)} | "
+                             f"{int((~ball_v).sum() + (~ball_e).sum())} / "
+                             f"{int(ball_v.sum() + ball_e.sum())} | {miss} |")
+            print(lines[-5], *lines[-4:], sep="\n", flush=True)
+    finally:
+        C.CollisionDetect.step, C.CollisionConstraint.finalize = step0, fin0
+    return "\n".join(lines)
+
+
 def per_frame_table(rows) -> str:
     """One line per frame: per run CPU ms, max strain %, intersecting pairs, contacts (vf + ee
     rows of the substeps' detections, summed), the largest final-round active count, the
@@ -478,6 +629,10 @@ def main(argv=None):
     ap.add_argument("--moving-scenes", nargs="+", default=None, metavar="YAML",
                     help="with --moving: the moving scenes to run against the static one "
                          f"(default {MOVING.relative_to(ROOT)})")
+    ap.add_argument("--moving-flag", nargs="+", default=None, metavar="NAME",
+                    help="with --moving: the moving scenes again, each with the boolean "
+                         "contacts.NAME set True around its steps only (e.g. "
+                         "SPACETIME_PREDICTED), in the same interleaved run")
     ap.add_argument("--breakdown", action="store_true",
                     help="time the collision functions per frame (detect, project, ccd; "
                          "see install_breakdown) and print a per-frame table")
@@ -485,6 +640,10 @@ def main(argv=None):
                     help="only: contact rows of one detection of the flat 128 x 128 cloth "
                          "translated rigidly at 0-4 m/s, swept vs space-time boxes (see "
                          "rows_vs_speed)")
+    ap.add_argument("--rows-at-iterate", action="store_true",
+                    help="only: on the moving scene, do the rows of the substep's first "
+                         "detection (absolute swept, collider frame, space-time) hold the pairs "
+                         "of the iterate the iterations end at (see rows_at_iterate)")
     ap.add_argument("--out", default="bench_out/peer", help="output folder")
     args = ap.parse_args(argv)
     parse = lambda s: [tuple(int(v) for v in x.split("x")) for x in s.split(",")]  # noqa: E731
@@ -498,6 +657,10 @@ def main(argv=None):
     t_start = time.perf_counter()
     if args.rows_vs_speed:
         print(rows_vs_speed())
+        return []
+    if args.rows_at_iterate:
+        print(rows_at_iterate(tuple(range(2, (args.frames or 14) + 1))
+                              if args.frames and args.frames < 7 else (7, 9, 12, 14)))
         return []
 
     import numba
@@ -528,6 +691,10 @@ def main(argv=None):
                                             " moving" if sc.path == MOVING else
                                             f" {sc.path.stem}"),
                         threads=st[2] if len(st) > 2 else None) for st in loki for sc in scenes]
+        for name in args.moving_flag or ():  # the moving scenes again with a contacts flag on
+            runs += [LokiRun(sc, *st[:2], label=f" {sc.path.stem} {name}",
+                             threads=st[2] if len(st) > 2 else None, flags={name: True})
+                     for st in loki for sc in scenes[1:]]
         rows = run_interleaved(runs, frames)
         for r in rows:  # CPU per frame against the static scene at the same setting
             base = next((b for b in rows if b["setting"].split(" ")[0] ==
