@@ -141,7 +141,13 @@ SPACETIME_CROSS = True
 #: vertices, miss no cloth-cloth pair within its target at that iterate (0 in each of the four
 #: substeps), the space-time rows 12 (frame 9) and 2 (frame 14) of 145-1,606; every row set
 #: misses the same 19-150 pairs with the collider (not examined: presumably those the
-#: one-sided filter drops on purpose)
+#: one-sided filter drops on purpose). This flag on the moving scene, in one interleaved run
+#: (``NUMBA_NUM_THREADS=1 python graphs/bench/peer_collision.py --moving --loki 2x15
+#: --moving-flag SPACETIME_PREDICTED``, 23 frames, load 2.6-3.8): the moving scene's CPU per
+#: frame 10,752 -> 5,459 ms against the static scene's 2,434 (4.42 -> 2.24x median, 3.33 ->
+#: 1.62x mean), the rows of a frame's first detections 11-28M -> 1.7-2.9M (frames 9-23), no
+#: intersecting pair and no vertex inside in any frame either way, largest strain 93.4 ->
+#: 90.3 %: not within 1.5x even so, and unsafe (above)
 SPACETIME_PREDICTED = False
 #: the swept-box detections (over the predicted motion) and the space-time ones (final rounds,
 #: CCD) query into their own pair buffers: a buffer sizes the single traversal pass's scratch
