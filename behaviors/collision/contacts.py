@@ -139,7 +139,10 @@ SPACETIME_CROSS = True
 #: 11-16 of the 16 contact passes of frames 7-11 (28.7-96.1 s CPU per frame, 1 thread). The
 #: same check shows that the absolute swept rows, though their box test fails for most
 #: vertices, miss no cloth-cloth pair within its target at that iterate (0 in each of the four
-#: substeps), the space-time rows 12 (frame 9) and 2 (frame 14) of 145-1,606; every row set
+#: substeps), the space-time rows 12 (frame 9) and 2 (frame 14) of 145-1,606 (none with
+#: 5 mm more inflation, but then 238 / 344 / 290 / 260 rows per cloth vertex and more
+#: detection CPU than the absolute boxes in all four: 995 / 2,013 / 1,858 / 1,634 ms against
+#: 397 / 1,712 / 972 / 792, ``--slack 0.005``); every row set
 #: misses the same 19-150 pairs with the collider (not examined: presumably those the
 #: one-sided filter drops on purpose). This flag on the moving scene, in one interleaved run
 #: (``NUMBA_NUM_THREADS=1 python graphs/bench/peer_collision.py --moving --loki 2x15

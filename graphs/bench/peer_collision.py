@@ -646,6 +646,8 @@ def main(argv=None):
                     help="only: on the moving scene, do the rows of the substep's first "
                          "detection (absolute swept, collider frame, space-time) hold the pairs "
                          "of the iterate the iterations end at (see rows_at_iterate)")
+    ap.add_argument("--slack", type=float, default=0.005,
+                    help="--rows-at-iterate: the extra inflation [m] of the slack rows")
     ap.add_argument("--out", default="bench_out/peer", help="output folder")
     args = ap.parse_args(argv)
     parse = lambda s: [tuple(int(v) for v in x.split("x")) for x in s.split(",")]  # noqa: E731
@@ -662,7 +664,8 @@ def main(argv=None):
         return []
     if args.rows_at_iterate:
         print(rows_at_iterate(tuple(range(2, (args.frames or 14) + 1))
-                              if args.frames and args.frames < 7 else (7, 9, 12, 14)))
+                              if args.frames and args.frames < 7 else (7, 9, 12, 14),
+                              slack=args.slack))
         return []
 
     import numba
