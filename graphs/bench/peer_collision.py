@@ -537,9 +537,9 @@ def rows_at_iterate(frames=(7, 9, 12, 14), slack=0.005) -> str:
                          f"{1e3 * np.percentile(dev, 90):.1f} / {1e3 * dev.max():.1f} mm) |||||")
             sets = [("absolute swept", np.zeros(3), 0.0, False),
                     ("collider frame", D, 0.0, False),
-                    (f"collider frame +{1e3 * slack:.0f} mm", D, slack, False),
+                    (f"collider frame +{1e3 * slack:g} mm", D, slack, False),
                     ("space-time", np.zeros(3), 0.0, True),
-                    (f"space-time +{1e3 * slack:.0f} mm", np.zeros(3), slack, True)]
+                    (f"space-time +{1e3 * slack:g} mm", np.zeros(3), slack, True)]
             for name, S, sl, st in sets:
                 g2 = copy.deepcopy(g)
                 c0 = time.process_time()
