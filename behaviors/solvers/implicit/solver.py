@@ -394,6 +394,17 @@ class ImplicitParams(Params):
         "most displaced compliant vertex moved 3.4 cm (0.4 cm of it inward) / 2.7 cm, all "
         "inward, and by frame 23 the compliant surface had moved up to 1.15 m / receded 15 "
         "cm: neither holds the knee.")
+    compliant_depth: float = Field(
+        0.0, ge=0.0, description="With compliant_kinematics: energy, the largest recession "
+        "of a compliant vertex from its animated pose [m] (0: none): beyond it the goal spring "
+        "stiffens by compliant_depth_stiffness (the energy k/2 (|x - x_anim| - depth)^2, exact "
+        "Hessian). The goal springs alone "
+        "(~7 N/m per vertex at the knee) let single vertices recede independently by "
+        "centimetres in one substep and the compliant surface crumples (Field "
+        "compliant_kinematics).")
+    compliant_depth_stiffness: float = Field(
+        1e3, gt=0.0, description="compliant_depth: the stiffness beyond the depth as a multiple "
+        "of the compliant vertex's goal spring K [-].")
     hard_multipliers: Literal["converged", "always"] = Field(
         "converged", description="Augmented Lagrangian update of the hard rows' multipliers "
         "(lam += k C, inextensible stretch, welds) after a substep: 'always' after every "
@@ -653,6 +664,18 @@ class ImplicitSolver(Behavior):
             E += 0.5 * float(np.einsum("i,ij,ij->", kt, dt_, dt_))
             if mode >= 1:
                 grad[ci] += kt[:, None] * dt_
+        depth = self.params.compliant_depth if d.comp_idx is not None else 0.0
+        if depth > 0.0:  # compliant_depth: k/2 (|x - x_anim| - depth)^2 beyond the depth
+            ci = d.comp_idx
+            dc = dxt[ci]
+            r = np.sqrt(np.einsum("ij,ij->i", dc, dc))
+            over = np.maximum(r - depth, 0.0)
+            kd = self.params.compliant_depth_stiffness * mass[ci] / (h * h)
+            E += 0.5 * float(np.dot(kd, over * over))
+            deep = over > 0.0
+            if mode >= 1 and deep.any():
+                u = dc[deep] / r[deep, None]
+                grad[ci[deep]] += (kd[deep] * over[deep])[:, None] * u
         D = ctx.state.fields.get("drag_D")
         if D is not None:
             du = x - d.work["x0"] - h * ctx.state.fields["drag_u"]
@@ -679,6 +702,10 @@ class ImplicitSolver(Behavior):
                 ci, cn = d.comp_idx, d.comp_nrm
                 kt = (_tangential_ratio(self) - 1.0) * mass[ci] / (h * h)
                 diag[ci] += kt[:, None, None] * (eye - cn[:, :, None] * cn[:, None, :])
+            if depth > 0.0 and deep.any():  # k (u u^T + (1 - depth / r) (I - u u^T))
+                uu = u[:, :, None] * u[:, None, :]
+                f = (over[deep] / r[deep])[:, None, None]
+                diag[ci[deep]] += kd[deep, None, None] * (uu + f * (eye - uu))
             if D is not None:
                 diag += D / h
             A[d.diag] = diag
