@@ -13,7 +13,9 @@ frame 5, 22 at 16, 97 at 23; recession 20.9 mm at frame 5, 63.8 mm at 22, 138 mm
 trouser intersects the leg from frame 24 (graphs/bench/implicit_knee.py). With scale=10: 0
 inverted to frame 12, 25 at frame 25, recession 56.9 mm at 25, speeds <= 1.68 m/s to frame 26,
 but intersecting pairs from frame 28 (graphs/bench/implicit_knee.py knee
-compliant_kinematics=energy compliant_solve=block scale=10).
+compliant_kinematics=energy compliant_solve=block scale=10). With compliant_depth=0.01 (default
+compliant_solve cg): at most 7 inverted triangles to frame 26, recession 10.2 mm at frame 5,
+41.4 mm at 25 (the cap is a soft penalty), 0 intersecting pairs through the whole knee.
 """
 
 import sys

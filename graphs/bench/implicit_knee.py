@@ -74,7 +74,8 @@ compliant_depth=0.01 (with compliant_kinematics=energy; each vertex's recession 
 spring 1000x stiffer beyond 1 cm), whole runs, 0 intersecting pairs in every frame of all four:
 knee 1.573 m/s in frames 37-48 (bound 1.65), 1.720 m/s overall, 97 s CPU; pinch 0.001 m/s;
 sleeve_pinch 0.201 m/s from frame 5; sleeve_elbow 1.141 m/s, 0.928 m/s near the joint (bound
-0.73: fails; depth 0.005 / 0.02: 1.097 / 1.084, compliant_depth_stiffness=100: 0.837). Knee,
+0.73: fails; depth 0.005 / 0.02: 1.097 / 1.084, compliant_depth_stiffness=100: 0.837, but
+then the knee intersects from frame 26 and reaches 1.995 m/s in frames 37-48). Knee,
 30 frames, first frame with intersecting pairs: energy 24; energy with the compliant unknowns
 started from their animation every substep (tried, not kept) 18, with depth 0.02 too 12;
 depth 0.01 none.
