@@ -35,7 +35,6 @@ from __future__ import annotations
 import shutil
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -46,6 +45,7 @@ from lokigraph.run import Simulation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from implicit_knee import EX, SCENES, scene_text  # noqa: E402
+from implicit_precond import step_counted  # noqa: E402
 
 
 def _sim(name, overrides, tmp):
@@ -75,14 +75,8 @@ def main(argv):
                "vmax": [], "pen": []} for m in modes}
     for f in range(frames):
         for mode, (c, sim) in runs.items():
-            t0 = time.process_time()
-            st = sim.step_frame()
             r = acc[mode]
-            r["cpu"] += time.process_time() - t0
-            r["newton"] += st.get("newton_iterations", 0)
-            r["cg"] += st.get("cg_iterations", 0)
-            r["cg_max"] = max(r["cg_max"], st.get("max_cg_iterations", 0))
-            r["res"] = max(r["res"], st.get("max_cg_residual", 0.0))
+            step_counted(sim, r)
             q, v = sim.state.particle_q, sim.state.particle_qd
             cl = c.scene.element(cloth_name)
             r["vmax"].append(float(np.linalg.norm(v[cl.vertex_slice], axis=1).max()))

@@ -23,6 +23,20 @@ ROOT = Path(__file__).resolve().parents[1]
 PRECONDITIONERS = ("none", "block_jacobi", "amg")
 
 
+def step_counted(sim, r):
+    """Step ``sim`` one frame and add its CPU time and the implicit solver's statistics to the
+    accumulator ``r`` (keys cpu, newton, cg: sums; cg_max, res: maxima); returns the frame's
+    statistics."""
+    c0 = time.process_time()
+    st = sim.step_frame()
+    r["cpu"] += time.process_time() - c0
+    r["newton"] += st.get("newton_iterations", 0)
+    r["cg"] += st.get("cg_iterations", 0)
+    r["cg_max"] = max(r["cg_max"], st.get("max_cg_iterations", 0))
+    r["res"] = max(r["res"], st.get("max_cg_residual", 0.0))
+    return st
+
+
 def _find(name: str) -> Path:
     for d in ("bench", "examples"):
         p = ROOT / d / f"{name}.yaml"
@@ -55,14 +69,7 @@ def main(argv=None):
             sim.step_frame()
         for _ in range(a.frames):
             for p, sim in runs.items():
-                c0 = time.process_time()
-                st = sim.step_frame()
-                r = acc[p]
-                r["cpu"] += time.process_time() - c0
-                r["newton"] += st.get("newton_iterations", 0.0)
-                r["cg"] += st.get("cg_iterations", 0.0)
-                r["cg_max"] = max(r["cg_max"], st.get("max_cg_iterations", 0.0))
-                r["res"] = max(r["res"], st.get("max_cg_residual", 0.0))
+                step_counted(sim, acc[p])
         for p in PRECONDITIONERS:
             r = acc[p]
             print(f"{name:18} {p:14} {r['newton']:7.0f} {r['cg']:8.0f} "
