@@ -125,31 +125,6 @@ def contact_rows(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, o
 
 
 @njit(cache=True)
-def contact_filter(w, c_v, c_cf, c_n, c_c, nc, best, out):
-    """Per-vertex inverse-mass blocks [1/kg] ``out`` (n, 3, 3) of the filtered global step:
-    ``w I`` for free vertices, ``w (I - n n^T)`` for the vertices of a contact row (those with
-    a coefficient over 0.05) along the normal of their most closed row (smallest C; ``best``
-    holds it), so that the step moves contacting vertices only in the contact's tangent
-    plane. Returns nothing."""
-    n = w.shape[0]
-    for i in range(n):
-        best[i] = np.inf
-    for r in range(nc):
-        for q in range(4):
-            v = c_v[r, q]
-            if abs(c_cf[r, q]) > 0.05 and w[v] > 0.0 and c_c[r] < best[v]:
-                best[v] = c_c[r]
-                for a in range(3):
-                    for b in range(3):
-                        out[v, a, b] = w[v] * ((1.0 if a == b else 0.0) - c_n[r, a] * c_n[r, b])
-    for i in range(n):
-        if best[i] == np.inf:
-            for a in range(3):
-                for b in range(3):
-                    out[i, a, b] = w[i] if a == b else 0.0
-
-
-@njit(cache=True)
 def contact_normals(w, c_v, c_cf, c_n, c_c, nc, best, out):
     """Per vertex the outward normal (from the collider to the vertex: the row's normal times
     the sign of the vertex's coefficient) of its most closed contact row (smallest C, held in
@@ -165,6 +140,23 @@ def contact_normals(w, c_v, c_cf, c_n, c_c, nc, best, out):
                 s = 1.0 if c_cf[r, q] > 0.0 else -1.0
                 for a in range(3):
                     out[v, a] = s * c_n[r, a]
+
+
+@njit(cache=True)
+def contact_filter(w, c_v, c_cf, c_n, c_c, nc, best, nrm, out):
+    """Per-vertex inverse-mass blocks [1/kg] ``out`` (n, 3, 3) of the filtered global step:
+    ``w I`` for free vertices, ``w (I - n n^T)`` for the vertices of a contact row (those with
+    a coefficient over 0.05) along the normal of their most closed row (``contact_normals``,
+    into ``best`` and the scratch ``nrm`` (n, 3); its sign cancels in n n^T), so that the step
+    moves contacting vertices only in the contact's tangent plane. Returns nothing."""
+    contact_normals(w, c_v, c_cf, c_n, c_c, nc, best, nrm)
+    for i in range(w.shape[0]):
+        for a in range(3):
+            for b in range(3):
+                if best[i] == np.inf:
+                    out[i, a, b] = w[i] if a == b else 0.0
+                else:
+                    out[i, a, b] = w[i] * ((1.0 if a == b else 0.0) - nrm[i, a] * nrm[i, b])
 
 
 @njit(cache=True)
@@ -452,7 +444,8 @@ class GlobalStrainStep:
                 if self._blk is None or len(self._blk) != len(w):
                     self._blk = np.zeros((len(w), 3, 3))
                     self._best = np.zeros(len(w))
-                contact_filter(w, cv, ccf, cn, cc, len(cc), self._best, self._blk)
+                    self._bnrm = np.zeros((len(w), 3))
+                contact_filter(w, cv, ccf, cn, cc, len(cc), self._best, self._bnrm, self._blk)
                 nb = len(w)
                 Wb = sp.bsr_matrix((self._blk, np.arange(nb), np.arange(nb + 1)),
                                    shape=(3 * nb, 3 * nb)).tocsr()
