@@ -55,6 +55,14 @@ def _drape(scene_file, passes, contacts="filter", frames=8, res=32, eps=0.01, ne
             return out
 
         sl.run = run
+    return _measure(c, sim, frames, centred=True)
+
+
+def _measure(c, sim, frames, centred=False):
+    """Step ``frames`` frames: per frame the worst edge strain of the element "cloth", the
+    smallest distance of a cloth vertex from the centre of "ball" (the origin if ``centred``,
+    else the mean of its vertices) minus the ball's inradius [m] (a cloth vertex nearer is
+    inside it), and the frame's penetration count."""
     cl, b = c.scene.element("cloth"), c.scene.element("ball")
     E = triangle_edges(cl.geometry.triangles)
     X = cl.geometry.points
@@ -65,11 +73,11 @@ def _drape(scene_file, passes, contacts="filter", frames=8, res=32, eps=0.01, ne
         q = sim.state.particle_q
         qc, qb = q[cl.vertex_slice], q[b.vertex_slice]
         strain.append((np.linalg.norm(qc[E[:, 1]] - qc[E[:, 0]], axis=1) / L0 - 1).max())
-        T = qb[b.geometry.triangles]  # the ball's inradius: a cloth vertex nearer is inside
+        T = qb[b.geometry.triangles]
         nrm = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
-        inr = np.abs(np.einsum("ij,ij->i", nrm, T[:, 0])
-                     / np.linalg.norm(nrm, axis=1)).min()
-        depth.append(np.linalg.norm(qc, axis=1).min() - inr)
+        inr = np.abs(np.einsum("ij,ij->i", nrm, T[:, 0]) / np.linalg.norm(nrm, axis=1)).min()
+        centre = 0.0 if centred else qb.mean(axis=0)
+        depth.append(np.linalg.norm(qc - centre, axis=1).min() - inr)
         pen.append(int(st.get("penetrations", 0) or 0))
     return np.array(strain), np.array(depth), np.array(pen)
 
@@ -118,23 +126,7 @@ def _drop(tmp_path, frames, **sl):
     f = tmp_path / f"drop_{len(list(tmp_path.glob('*.yaml')))}.yaml"
     f.write_text(yaml.safe_dump(s))
     c = compile_file(f)
-    sim = Simulation(c)
-    cl, b = c.scene.element("cloth"), c.scene.element("ball")
-    E = triangle_edges(cl.geometry.triangles)
-    X = cl.geometry.points
-    L0 = np.linalg.norm(X[E[:, 1]] - X[E[:, 0]], axis=1)
-    strain, depth, pen = [], [], []
-    for _ in range(frames):
-        st = sim.step_frame()
-        q = sim.state.particle_q
-        qc, qb = q[cl.vertex_slice], q[b.vertex_slice]
-        strain.append((np.linalg.norm(qc[E[:, 1]] - qc[E[:, 0]], axis=1) / L0 - 1).max())
-        T = qb[b.geometry.triangles]
-        nrm = np.cross(T[:, 1] - T[:, 0], T[:, 2] - T[:, 0])
-        inr = np.abs(np.einsum("ij,ij->i", nrm, T[:, 0]) / np.linalg.norm(nrm, axis=1)).min()
-        depth.append(np.linalg.norm(qc - qb.mean(axis=0), axis=1).min() - inr)
-        pen.append(int(st.get("penetrations", 0) or 0))
-    return np.array(strain), np.array(depth), np.array(pen)
+    return _measure(c, Simulation(c), frames)
 
 
 @pytest.mark.slow
@@ -153,25 +145,6 @@ def test_pivoted_rows_step_holds_the_64_drop(tmp_path):
                       global_pivots=10)
     assert s.max() < 0.0115
     assert (d > 0.0).all() and (pen == 0).all()
-
-
-if __name__ == "__main__":
-    import sys
-    import tempfile
-    import time
-    from pathlib import Path
-
-    from conftest import write_scene
-
-    with tempfile.TemporaryDirectory() as tmp:
-        for args, kw in [((0,), {}), ((20, "filter"), {}), ((20, "rows"), {}),
-                         ((20, "none"), {}), ((20, "rows"), dict(near=0.02, pivots=10)),
-                         ((20, "filter"), dict(near=0.02, pivots=10))]:
-            t = time.process_time()
-            s, d, pen = _drape(lambda t, n: write_scene(Path(tmp), t, n), *args,
-                               frames=int(sys.argv[1]), res=int(sys.argv[2]), **kw)
-            print(args, kw, np.round(100 * s, 2), np.round(1000 * d, 2), pen,
-                  f"{time.process_time() - t:.1f} s CPU")
 
 
 def test_schur_update_matches_a_fresh_factorisation():
@@ -201,3 +174,22 @@ def test_schur_update_matches_a_fresh_factorisation():
     x = GlobalStrainStep._schur(R, C, base, drop, add, idx)
     ref = spla.spsolve(R[idx][:, idx].tocsc(), C[idx])
     assert np.abs(x - ref).max() < 1e-9 * np.abs(ref).max()
+
+
+if __name__ == "__main__":
+    import sys
+    import tempfile
+    import time
+    from pathlib import Path
+
+    from conftest import write_scene
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for args, kw in [((0,), {}), ((20, "filter"), {}), ((20, "rows"), {}),
+                         ((20, "none"), {}), ((20, "rows"), dict(near=0.02, pivots=10)),
+                         ((20, "filter"), dict(near=0.02, pivots=10))]:
+            t = time.process_time()
+            s, d, pen = _drape(lambda t, n: write_scene(Path(tmp), t, n), *args,
+                               frames=int(sys.argv[1]), res=int(sys.argv[2]), **kw)
+            print(args, kw, np.round(100 * s, 2), np.round(1000 * d, 2), pen,
+                  f"{time.process_time() - t:.1f} s CPU")
