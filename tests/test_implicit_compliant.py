@@ -124,3 +124,49 @@ def test_compliant_depth_caps_recession(tmp_path):
     assert abs(rec[23] - 0.008) < 1e-4  # the room the closure needs, as without the cap
     assert max(pen) == 0
     assert max(vmax[3:]) < 0.3  # the Nucleus test's bound
+
+
+def test_compliant_shape_energy_derivatives():
+    """``compliant_shape_stiffness``'s energy s K_e / 2 |u_a - u_b|^2 (u = x - x_anim over the
+    compliant edges; behaviors/solvers/implicit/compliant.py): its gradient and its Hessian
+    blocks, scattered into a block-sparse pattern with off-diagonal blocks, match central
+    differences of the energy and its gradient; the Hessian is PSD with the uniform recession
+    (a rigid shift of the patch) in its null space; only edges of two compliant vertices count."""
+    import scipy.sparse as sp
+
+    from lokigraph.behaviors.solvers.implicit.compliant import compliant_edges, shape_energy
+    from lokigraph.behaviors.solvers.implicit.energy import build_pattern
+
+    rng = np.random.default_rng(3)
+    n = 7
+    tris = np.array([[0, 1, 2], [1, 3, 2], [2, 3, 4], [3, 5, 4], [4, 5, 6]])
+    comp = np.ones(n, bool)
+    comp[6] = False
+    edges = compliant_edges(tris, comp)
+    assert len(edges) == 9 and not (edges == 6).any()  # 11 mesh edges, 2 reach vertex 6
+    kbar = rng.uniform(0.5, 2.0, len(edges))
+    indptr, indices, diag, maps = build_pattern(n, [edges])
+    x, xt = rng.normal(size=(n, 3)), rng.normal(size=(n, 3))
+    g = np.zeros((n, 3))
+    data = np.zeros((len(indices), 3, 3))
+    E = shape_energy(x, xt, edges, kbar, 3.0, 2, g, data, maps[0])
+    dummy = np.zeros((1, 3))
+    assert E > 0.0
+    assert shape_energy(x, xt, edges, kbar, 3.0, 0, dummy, data[:0], maps[0]) == E
+    H = sp.bsr_matrix((data, indices, indptr), shape=(3 * n, 3 * n)).toarray()
+    eps = 1e-6
+    for i in range(n):
+        for r in range(3):
+            xp, xm = x.copy(), x.copy()
+            xp[i, r] += eps
+            xm[i, r] -= eps
+            gp, gm = np.zeros((n, 3)), np.zeros((n, 3))
+            Ep = shape_energy(xp, xt, edges, kbar, 3.0, 1, gp, data[:0], maps[0])
+            Em = shape_energy(xm, xt, edges, kbar, 3.0, 1, gm, data[:0], maps[0])
+            assert abs((Ep - Em) / (2 * eps) - g[i, r]) < 1e-6 * (1 + abs(g[i, r]))
+            np.testing.assert_allclose((gp - gm).ravel() / (2 * eps), H[3 * i + r], atol=1e-6)
+    assert np.linalg.eigvalsh(H).min() > -1e-9
+    shift = np.zeros((n, 3))
+    shift[comp] = [0.3, -0.2, 0.1]
+    assert np.abs(H @ shift.ravel()).max() < 1e-12
+    assert H[0:3, 3:6].any()  # the off-diagonal blocks of the Newton matrix pattern

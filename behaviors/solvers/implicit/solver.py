@@ -174,6 +174,7 @@ from .contact import (contact_energy_al, extend_live, lag_contacts_al, lag_rows,
                       lag_rows_sel, row_energy, row_residuals, safety_project, start_targets_on,
                       update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, limit_energy, scatter_blocks
+from .compliant import compliant_edges, shape_energy
 from .linear import BlockJacobi, Identity, SmoothedAggregation, invert_blocks
 
 #: constraint types applied by the projection pass after the Newton solve (see module docstring)
@@ -420,6 +421,14 @@ class ImplicitParams(Params):
     compliant_depth_stiffness: float = Field(
         1e3, gt=0.0, description="compliant_depth: the stiffness beyond the depth as a multiple "
         "of the compliant vertex's goal spring K [-].")
+    compliant_shape_stiffness: float = Field(
+        0.0, ge=0.0, description="With compliant_kinematics: energy, the stiffness s [-] "
+        "between neighbouring compliant unknowns (0: none): over the collider mesh's edges "
+        "whose two vertices are compliant, the energy s K_e / 2 |u_a - u_b|^2 with u = x - "
+        "x_anim and K_e the mean goal spring of the two (a Laplacian smoothing of the "
+        "recession, exact Hessian with off-diagonal blocks; behaviors/solvers/implicit/"
+        "compliant.py), so that a dent spreads over about sqrt(s) edges instead of one vertex "
+        "crumpling the surface.")
     hard_multipliers: Literal["converged", "always"] = Field(
         "converged", description="Augmented Lagrangian update of the hard rows' multipliers "
         "(lam += k C, inextensible stretch, welds) after a substep: 'always' after every "
@@ -527,6 +536,11 @@ class _ImplicitData:
     elim_inv: np.ndarray | None = None
     elim_rhs: np.ndarray | None = None
     all_on: np.ndarray | None = None  # True per vertex (violated_rows: hold)
+    #: compliant_shape_stiffness: the compliant edges (m, 2), their mean goal-spring mass
+    #: (K h^2) and their (m, 2, 2) block map
+    shape_edges: np.ndarray | None = None
+    shape_kbar: np.ndarray | None = None
+    shape_map: np.ndarray | None = None
 
 
 class ImplicitSolver(Behavior):
@@ -614,7 +628,13 @@ class ImplicitSolver(Behavior):
                 raise InputError(f"the implicit solver cannot run constraint {b.name!r} "
                                  f"({name}): it has no implicit energy and no projection; "
                                  f"remove it from the scene or use solver: nucleus")
+        if d.comp_idx is not None and self.params.compliant_shape_stiffness > 0.0:
+            d.shape_edges = compliant_edges(d.comp_tris, d.compliant)
+            d.shape_kbar = 0.5 * d.inertia[d.shape_edges].sum(axis=1)
+            stencils.append(d.shape_edges)
         indptr, indices, diag, maps = build_pattern(n, stencils)
+        if d.shape_edges is not None:
+            d.shape_map = maps.pop()
         nb = len(indices)
         data = np.zeros((nb, 3, 3))
         d.A = sp.bsr_matrix((data, indices, indptr), shape=(3 * n, 3 * n), blocksize=(3, 3))
@@ -710,6 +730,10 @@ class ImplicitSolver(Behavior):
                 for mp, hl in zip(maps, hloc):
                     scatter_blocks(A, mp, hl)
             E += self._limit_energy(d, x, mode, opts, grad, A)
+            if d.shape_edges is not None:  # compliant_shape_stiffness
+                E += shape_energy(x, xt, d.shape_edges, d.shape_kbar,
+                                  self.params.compliant_shape_stiffness / (h * h), 2, grad, A,
+                                  d.shape_map)
             diag = A[d.diag]
             eye = np.eye(3)
             diag += (mass / (h * h))[:, None, None] * eye
@@ -731,6 +755,10 @@ class ImplicitSolver(Behavior):
                 E += b.energy(ctx, bd, x, grad if mode >= 1 else None, None, opts)
             E += self._limit_energy(d, x, mode, opts, grad if mode >= 1 else opts.dummy_grad,
                                     d.A.data)
+            if d.shape_edges is not None:
+                E += shape_energy(x, xt, d.shape_edges, d.shape_kbar,
+                                  self.params.compliant_shape_stiffness / (h * h), mode,
+                                  grad if mode >= 1 else opts.dummy_grad, d.A.data, d.shape_map)
         if d.rows.get("sets"):
             g1 = grad if mode >= 1 else d.rows["g1"]
             A1 = d.A.data if mode >= 2 else d.rows["A1"]
