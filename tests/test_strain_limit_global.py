@@ -116,6 +116,23 @@ def test_global_tolerance_and_every_frame(scene_file):
         assert (d > 0.0).all() and (pen == 0).all()
 
 
+def test_global_smooth_converges_in_fewer_passes(scene_file):
+    """global_smooth: Gauss-Seidel sweeps of the edge limits after each pass of the global step
+    take out the second-order stretch of the linear step (edges rotated by it), so the step
+    is taken whole instead of halved, and global_alpha 1e-4 then converges faster than the
+    1e-3 the plain step needs. The drape holds the same bound in fewer passes, no cloth
+    vertex inside the ball, no penetration."""
+    pv = dict(contacts="rows", near=0.02, pivots=2, frames=8)
+    c0, c1 = [], []
+    s0, d0, pen0 = _drape(scene_file, 20, calls=c0, extra=", global_tolerance: 0.005", **pv)
+    s1, d1, pen1 = _drape(scene_file, 20, calls=c1, extra=", global_tolerance: 0.005, "
+                          "global_smooth: 40, global_alpha: 1.0e-4", **pv)
+    assert s0.max() < 0.0155 and s1.max() < 0.0155
+    assert sum(c1) <= 0.6 * sum(c0)  # measured 15 against 32 passes
+    for d, pen in ((d0, pen0), (d1, pen1)):
+        assert (d > 0.0).all() and (pen == 0).all()
+
+
 def _drop(tmp_path, frames, **sl):
     """cloth_on_sphere (64 x 64) with strain_limit overrides ``sl``: worst edge strain and the
     smallest distance of a cloth vertex from the ball's centre minus the ball's inradius [m]

@@ -212,6 +212,18 @@ class GlobalStrainStep:
         self.splu_opts = {"permc_spec": "MMD_AT_PLUS_A", "diag_pivot_thresh": 0.0,
                           "options": {"SymmetricMode": True}}
         self.stats = {"passes": 0, "factorisations": 0, "rows": 0, "contact_rows": 0}
+        self.smooth = 0
+        self._planes = None
+        # the step's edges grouped by colour (``edges`` comes colour-sorted from the strain
+        # limit's bind, ``sel`` ascending): the Gauss-Seidel smoothing sweeps them
+        self.s_edges = np.ascontiguousarray(edges[self.sel])
+        self.s_limit = np.ascontiguousarray(limit[self.sel])
+        self.s_ptr = None
+
+    def set_colors(self, color_ptr):
+        """The colour groups of ``edges`` (``color_ptr``, as the strain limit's kernels take
+        them), restricted to the step's edges: needed by the smoothing sweeps."""
+        self.s_ptr = np.searchsorted(self.sel, color_ptr).astype(np.int64)
 
     def _contacts(self, c, kind):
         rows = getattr(c, kind)
@@ -396,23 +408,46 @@ class GlobalStrainStep:
         out[~keep] = z[:na][np.searchsorted(add, idx[~keep])]
         return out
 
+    def _smooth_sweeps(self, p, w):
+        """``smooth`` Gauss-Seidel sweeps of the step's edge limits (``project_strain_limit``),
+        each followed by the contact planes of the pass (``_planes``: vertices, outward
+        normals, C and positions at the pass's start; a vertex behind its plane is moved
+        onto it along the normal)."""
+        from .strain_limit import project_strain_limit
+
+        pl = self._planes
+        for _ in range(self.smooth):
+            project_strain_limit(p, w, self.s_edges, self.s_limit, self.s_ptr)
+            if pl is not None:
+                vv, nn, c0, x0 = pl
+                viol = -(c0 + np.einsum("ij,ij->i", nn, p[vv] - x0))
+                viol = np.maximum(viol, 0.0)
+                p[vv] += viol[:, None] * nn
+
     def _move(self, p, w, tol, worst, dx, guard):
         """p -= dx, the step capped at ``dmax`` per vertex and, with ``guard``, halved (up to 4
-        times) while the worst edge gets worse."""
+        times) while the worst edge gets worse; with ``smooth`` > 0 each tried step is followed
+        by that many Gauss-Seidel sweeps of the edge limits (``_smooth_sweeps``) before the
+        worst edge is measured."""
         big = np.sqrt(np.einsum("ij,ij->i", dx, dx).max())
         if big > self.dmax:
             dx *= self.dmax / big
-        p0 = p.copy() if guard else None
+        smooth = self.smooth > 0 and self.s_ptr is not None
+        p0 = p.copy() if (guard or smooth) else None
         p -= dx
+        if smooth:
+            self._smooth_sweeps(p, w)
         if guard:
             for _h in range(4):
                 if self.worst(p, w, tol) <= max(worst, tol):
                     break
                 dx *= 0.5
                 p[:] = p0 - dx
+                if smooth:
+                    self._smooth_sweeps(p, w)
 
     def run(self, p, w, contacts, passes, tol, near, alpha, with_contacts="filter",
-            pivots=0, update=0):
+            pivots=0, update=0, smooth=0):
         """Up to ``passes`` Newton steps on p (in place) until every edge is within
         (1 + tol) limit. Returns the worst relative excess left.
 
@@ -425,7 +460,12 @@ class GlobalStrainStep:
         again), factorised every pass.
         'none': edges only. With ``pivots`` > 0 the factorised passes are LCPs (``_pivot``):
         'filter' over the edges (within ``near`` of their limit), 'rows' over the edges and one
-        one-sided row per vertex in contact with a collider, factorised every pass."""
+        one-sided row per vertex in contact with a collider, factorised every pass.
+        ``smooth`` > 0: each pass's step is followed by that many Gauss-Seidel sweeps of the
+        edge limits (with 'rows' and pivots, interleaved with the pass's contact planes)
+        before the guard measures it (``_move``)."""
+        self.smooth = int(smooth)
+        self._planes = None
         if self.w3 is None or len(self.w3) != 3 * len(w):
             self.w3 = np.repeat(w, 3)
             self._mark = np.zeros(len(self.edges), np.bool_)
@@ -498,6 +538,9 @@ class GlobalStrainStep:
                 contact_normals(w, cv, ccf, cn, cc, len(cc), self._vbest, nrm)
                 vv = np.flatnonzero(self._vbest < np.inf)
                 nc = len(vv)
+                if self.smooth:
+                    self._planes = (vv, np.ascontiguousarray(nrm[vv]), self._vbest[vv].copy(),
+                                    p[vv].copy())
                 cv = np.zeros((nc, 4), np.int64)
                 cv[:, 0] = vv
                 ccf = np.zeros((nc, 4))
