@@ -188,6 +188,20 @@ def _coo(w, edges, e_idx, e_n, ne, c_v, c_cf, c_n, nc, row0, ri, ci, vi):
     return k
 
 
+@njit(cache=True)
+def plane_project(p, vv, nn, c0, x0):
+    """Vertices ``vv`` behind their contact plane (``c0 + nn . (p - x0) < 0``: C and position
+    at the pass's start, outward normal) moved onto it along the normal. Returns nothing."""
+    for r in range(vv.shape[0]):
+        v = vv[r]
+        c = c0[r]
+        for a in range(3):
+            c += nn[r, a] * (p[v, a] - x0[r, a])
+        if c < 0.0:
+            for a in range(3):
+                p[v, a] -= c * nn[r, a]
+
+
 _NO_CONTACTS = (np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros((0, 3)), 0)
 
 
@@ -419,10 +433,7 @@ class GlobalStrainStep:
         for _ in range(self.smooth):
             project_strain_limit(p, w, self.s_edges, self.s_limit, self.s_ptr)
             if pl is not None:
-                vv, nn, c0, x0 = pl
-                viol = -(c0 + np.einsum("ij,ij->i", nn, p[vv] - x0))
-                viol = np.maximum(viol, 0.0)
-                p[vv] += viol[:, None] * nn
+                plane_project(p, *pl)
 
     def _move(self, p, w, tol, worst, dx, guard):
         """p -= dx, the step capped at ``dmax`` per vertex and, with ``guard``, halved (up to 4
