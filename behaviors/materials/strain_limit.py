@@ -246,7 +246,12 @@ class StrainLimitParams(ConstraintParams):
         "A 1.50 % (1027 ms, 2.19x), A + global_smooth 40 + global_alpha 1e-4 1.50 % (715 ms, "
         "1.52x), 0 penetrations; skirt_walk 5.00 / 1.41 / 1.41 % (54-56 ms: the step has "
         "nothing to do there); sleeve_elbow 23.91 % (293 ms) / 33.11 % (966 ms) / 37.86 % "
-        "(326 ms): the arm forces its rings over the limit and neither holds it. A without "
+        "(326 ms): the arm forces its rings over the limit and neither holds it; the 128 x 128 "
+        "drop (graphs/bench/cloth_sphere_128.yaml, 12 frames) 15.93 % (5474 ms) / 11.71 % "
+        "(last frame 5.81 %, 14301 ms: 20 passes do not converge there) / 1.66 % (last "
+        "frame 1.45 %, 12243 ms, 2.24x), 0 penetrations. Passes per frame on cloth_on_sphere "
+        "(--passes, frames 7-14): 112 -> 46 in all, 10-19 -> 4-7 a frame, about 0.55 of the "
+        "excess left per pass instead of 0.8. A without "
         "the step costs 472 ms on cloth_on_sphere (11.40 %, another run), so the sweeps halve "
         "the step's own cost (613 -> 298 ms in that run). Not a default: 1.5x the defaults' "
         "CPU, the target was 1.3x.")

@@ -40,6 +40,12 @@ Where the strain comes from::
 ``--stages``: per frame, the worst edge strain of the substeps after the interleaved
 iterations, after the final collision rounds (joint contact + strain-limit passes), after the
 CCD safe step and at the frame's end, with the contacts still active after the final rounds.
+``--passes SCENE``: the global strain-limit step's passes in each frame for each ``--set``
+(interleaved) and the worst relative excess over the limit after each pass::
+
+    .venv/bin/python graphs/bench/cloth_strain.py --passes cloth_on_sphere --frames 14 \
+        --set strain_limit.global_passes=20 ... --set ... strain_limit.global_smooth=40
+
 ``--girth``: sleeve_elbow, per frame, the circumferential rings over the elbow (8, 9, 10) and at
 the wrist (16): girth strain, worst ring edge strain, and the strain the arm forces on the ring
 (the perimeter of the convex hull of the arm's section -- upper arm, forearm, elbow cap at
@@ -344,6 +350,43 @@ def girth(frames, extras, rings=(8, 9, 10, 16)):
                   + f" | {inside_arm(q, sleeve, arm)} |", flush=True)
 
 
+def global_passes(name, frames, extras):
+    """The global strain-limit step's passes per frame, each --set in turn (interleaved), and
+    the worst relative excess over the limit after each pass (see the module doc)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        path = _scene_path(name)
+        runs = []
+        for ex in extras:
+            lbl = " ".join(f"{k}={v}" for p in ex.values() for k, v in p.items())
+            r = _Run(lbl, _variant(path, ex, Path(tmp)))
+            st = r.sim.compiled.schedule.find("StrainLimitConstraint")[0].data
+            g = getattr(st, "glob", None) if st is not None else None
+            r.trace, r.tot = [], [0, 0.0]
+            if g is not None:
+                move = g._move
+
+                def traced(p, w, tol, worst, dx, guard, g=g, move=move, r=r):
+                    move(p, w, tol, worst, dx, guard)
+                    r.trace.append(g.worst(p, w, tol))
+
+                g._move = traced
+            runs.append(r)
+        for k in range(frames):
+            for i, r in enumerate(runs):
+                r.trace.clear()
+                r.step()
+                r.tot[0] += len(r.trace)
+                r.tot[1] += r.cpu[-1]
+                if r.trace:
+                    print(f"frame {k + 1} setting {i}: {len(r.trace)} passes, worst edge "
+                          f"{100 * r.worst[-1]:.2f} %, CPU {1e3 * r.cpu[-1]:.0f} ms; excess "
+                          "after each pass % " + " ".join(f"{100 * x:.2f}" for x in r.trace),
+                          flush=True)
+        for i, r in enumerate(runs):
+            print(f"setting {i} ({r.label}): {r.tot[0]} passes, worst "
+                  f"{100 * max(r.worst):.2f} %, CPU {r.tot[1]:.1f} s over {frames} frames")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=24)
@@ -356,12 +399,16 @@ def main(argv=None):
     ap.add_argument("--only", nargs="*", help="only these of the built-in settings")
     ap.add_argument("--stages", metavar="SCENE", help="worst strain after each stage of the "
                     "substeps, per frame, at the defaults (or the first --set)")
+    ap.add_argument("--passes", metavar="SCENE", help="the global step's passes per frame "
+                    "and the excess after each pass, for each --set")
     ap.add_argument("--girth", action="store_true", help="sleeve_elbow: ring girths against "
                     "the girth the arm forces, per frame")
     args = ap.parse_args(argv)
     extras = [_parse_set(x) for x in args.set]
     if args.stages:
         stages(args.stages, args.frames, extras)
+    elif args.passes:
+        global_passes(args.passes, args.frames, extras)
     elif args.girth:
         girth(args.frames, extras)
     elif args.peer:
