@@ -69,6 +69,7 @@ def make(n, before):
     acc = defaultdict(float)
     sv = [b.behavior for b in sim.schedule.all() if isinstance(b.behavior, S.ImplicitSolver)][0]
     if before:
+        sv.screen_rows = False  # per instance
         prepare = sv._prepare
 
         def prep(ctx, d):
@@ -123,6 +124,141 @@ def main(n=128, frames=10, skip=5):
         print(f"  {k:9s} {a:8.2f} {b:8.2f}  {b / a if a else float('nan'):.3f}")
 
 
+# -- --table: settings side by side on the drape and cloth-on-sphere scenes ---------------------
+
+SCENES = ("drape_64", "drape_128", "cloth_sphere_64", "cloth_sphere_128")
+
+
+def table_sim(scene, setting):
+    """A simulation of graphs/bench/<scene>.yaml for ``setting`` (name, overrides): the name
+    ``nucleus`` runs the scene as it is; any other ``solver: implicit`` with the overrides as
+    ``graph_overrides.implicit_solver`` (``substeps`` sets the scene's substeps). The cloth
+    -on-sphere scenes run the implicit solver at 1 substep (the issue's "at 1 substep")."""
+    from lokigraph.compile import compile_scene
+    from lokigraph.scene import load_scene
+
+    name, ov = setting
+    sc = load_scene(D.BENCH / f"{scene}.yaml")
+    ov = dict(ov)
+    screen = bool(ov.pop("screen_rows", 1))
+    if name != "nucleus":
+        sub = int(ov.pop("substeps", 1 if scene.startswith("cloth_sphere") else
+                         sc.spec.substeps))
+        go = {k: dict(v) for k, v in sc.spec.graph_overrides.items()}
+        go.setdefault("implicit_solver", {}).update(ov)
+        sc.spec = sc.spec.model_copy(update={"solver": "implicit", "graph_overrides": go,
+                                             "substeps": sub})
+    c = compile_scene(sc)
+    sim = Simulation(c)
+    if not screen:  # the live-row tests' float32 screen off (per instance; exact either way)
+        for b in sim.schedule.all():
+            if isinstance(b.behavior, S.ImplicitSolver):
+                b.behavior.screen_rows = False
+    return sim, c
+
+
+def _frame_measures(c):
+    """Worst edge strain and intersecting triangle pairs (cloth self + cloth-collider) of a
+    compiled bench scene's state: a function of the positions."""
+    from lokigraph.behaviors.collision.intersect import intersect_meshes
+
+    sd = c.schedule.find("StretchConstraint")[0].data
+    idx, rest = sd.idx, sd.rest
+    cl = c.scene.element("cloth")
+    others = [e for e in c.scene.elements if e is not cl and e.geometry is not None
+              and e.vertex_count and len(e.geometry.triangles)]
+
+    def measure(q):
+        e = np.linalg.norm(q[idx[:, 1]] - q[idx[:, 0]], axis=1) / rest - 1.0
+        cm = (q[cl.vertex_slice], cl.geometry.triangles)
+        pairs = int(intersect_meshes([cm], touching=False)[0])
+        for o in others:
+            _, pr = intersect_meshes([cm, (q[o.vertex_slice], o.geometry.triangles)],
+                                     touching=False)
+            pairs += int((pr[:, 0] != pr[:, 2]).sum())
+        return float(e.max()), pairs
+    return measure
+
+
+def table(scenes, settings, frames, skip=1):
+    """Per scene, the settings stepped frame by frame in one process, interleaved (ABBA: the
+    order reverses every frame); after the first ``skip`` frames (JIT warm-up) the CPU
+    (process_time) and wall ms per frame, Newton and CG iterations per frame, and over every
+    frame the worst edge strain and the most intersecting triangle pairs, and whether the
+    positions were bitwise those of the first setting in every frame. Returns the rows.
+    A setting ``screen_rows=0`` switches the solver's float32 live-row screen off."""
+    out = []
+    print(f"{'scene':17} {'setting':22} {'CPU ms/fr':>9} {'wall ms/fr':>10} {'CPU ratio':>9} "
+          f"{'Newton/fr':>9} {'CG/fr':>8} {'max strain %':>12} {'max pairs':>9} "
+          f"{'bitwise':>7}", flush=True)
+    for scene in scenes:
+        runs = {}
+        for st in settings:
+            sim, c = table_sim(scene, st)
+            runs[st[0]] = (sim, _frame_measures(c))
+        acc = {k: defaultdict(float) for k in runs}
+        first = settings[0][0]
+        same = {k: True for k in runs}
+        for f in range(frames):
+            order = list(runs) if f % 2 == 0 else list(reversed(list(runs)))
+            for k in order:
+                sim, measure = runs[k]
+                t, w = time.process_time(), time.perf_counter()
+                st = sim.step_frame()
+                dt, dw = time.process_time() - t, time.perf_counter() - w
+                strain, pairs = measure(sim.state.particle_q)
+                a = acc[k]
+                a["strain"] = max(a["strain"], strain)
+                a["pairs"] = max(a["pairs"], pairs)
+                if f >= skip:
+                    a["cpu"] += dt
+                    a["wall"] += dw
+                    a["newton"] += st.get("newton_iterations", 0)
+                    a["cg"] += st.get("cg_iterations", 0)
+            q0 = runs[first][0].state.particle_q
+            for k in runs:
+                same[k] &= np.array_equal(runs[k][0].state.particle_q, q0)
+        m = max(frames - skip, 1)
+        base = acc[settings[0][0]]["cpu"] or 1.0
+        for k, a in acc.items():
+            row = dict(scene=scene, setting=k, cpu=1e3 * a["cpu"] / m, wall=1e3 * a["wall"] / m,
+                       ratio=a["cpu"] / base, newton=a["newton"] / m, cg=a["cg"] / m,
+                       strain=100 * a["strain"], pairs=int(a["pairs"]), bitwise=same[k])
+            out.append(row)
+            print(f"{scene:17} {k:22} {row['cpu']:9.0f} {row['wall']:10.0f} {row['ratio']:9.3f} "
+                  f"{row['newton']:9.1f} {row['cg']:8.0f} {row['strain']:12.2f} "
+                  f"{row['pairs']:9d} {str(row['bitwise']):>7}", flush=True)
+    return out
+
+
+def _setting(text):
+    """``name`` or ``name:k=v,k=v`` -> (name, {k: v}) with numbers parsed."""
+    name, _, rest = text.partition(":")
+    ov = {}
+    for kv in filter(None, rest.split(",")):
+        k, v = kv.split("=", 1)
+        try:
+            v = int(v)
+        except ValueError:
+            try:
+                v = float(v)
+            except ValueError:
+                pass
+        ov[k] = v
+    return name, ov
+
+
 if __name__ == "__main__":
-    args = [int(a) for a in sys.argv[1:]]
-    main(*args[:2])
+    if "--table" in sys.argv:
+        import argparse
+
+        ap = argparse.ArgumentParser()
+        ap.add_argument("--table", action="store_true")
+        ap.add_argument("--scenes", nargs="+", default=list(SCENES))
+        ap.add_argument("--frames", type=int, default=10)
+        ap.add_argument("--settings", nargs="+", default=["defaults"])
+        a = ap.parse_args()
+        table(a.scenes, [_setting(t) for t in a.settings], a.frames)
+    else:
+        args = [int(a) for a in sys.argv[1:]]
+        main(*args[:2])

@@ -405,6 +405,94 @@ def extend_live(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam
     return ns
 
 
+# -- the single-precision screen of the live-row test (exact) -----------------------------------
+# At a 128 x 128 impact the pipeline hands ~5 M rows per substep, of which 10-60 k are live, and
+# every Newton iteration visits them all once (``extend_live``) and the start of a substep twice
+# (``lag_rows_live``): CPU-bound on reading 64 bytes of row data per row (indices int64, normal,
+# target). ``screen_fill`` copies indices, normals and targets once per substep into 32 bytes
+# per row (int32, float32); the screened kernels test the gap bound on that copy first, with the
+# positions in float32, and only rows whose screened bound falls within ``margin`` of the
+# threshold get the float64 test. The screened bound differs from the float64 one by the
+# rounding of the data to float32 (relative 6e-8 of the coordinates, normals and targets: ~1e-6
+# m at |x| ~ 1-2 m), far below ``screen_margin``, so a row the screen leaves out fails the
+# float64 test too: the live rows, coefficients, forces and positions are bitwise those of the
+# unscreened kernels (graphs/bench/implicit_speedups.py, tests/test_implicit_live_rows.py).
+
+
+@njit(cache=True)
+def screen_fill(rows, nrm, target, r32, n32, t32):
+    """The screen's copy of rows (int32), normals and targets (float32)."""
+    for r in range(rows.shape[0]):
+        for j in range(4):
+            r32[r, j] = rows[r, j]
+        for q in range(3):
+            n32[r, q] = nrm[r, q]
+        t32[r] = target[r]
+
+
+def screen_margin(x, tmax):
+    """Margin [m] of the screened live-row test over its rounding: 1e-5 of the largest
+    coordinate of x plus the largest |target| ``tmax``, plus 1e-5 m (the rounding is below 1e-6
+    of those)."""
+    xm = float(np.abs(x).max()) if x.size else 0.0
+    return 1e-5 * (1.0 + xm + tmax)
+
+
+@njit(cache=True, inline="always")
+def _gap_bound32(x32, r32, n32, t32, is_vf, r):
+    """``_gap_bound`` on the screen's float32 copy (summed in float64)."""
+    n0, n1, n2 = np.float64(n32[r, 0]), np.float64(n32[r, 1]), np.float64(n32[r, 2])
+    a, b, c, e = r32[r, 0], r32[r, 1], r32[r, 2], r32[r, 3]
+    p0 = x32[a, 0] * n0 + x32[a, 1] * n1 + x32[a, 2] * n2
+    p1 = x32[b, 0] * n0 + x32[b, 1] * n1 + x32[b, 2] * n2
+    p2 = x32[c, 0] * n0 + x32[c, 1] * n1 + x32[c, 2] * n2
+    p3 = x32[e, 0] * n0 + x32[e, 1] * n1 + x32[e, 2] * n2
+    if is_vf:
+        return p0 - max(p1, max(p2, p3)) - t32[r]
+    return min(p0, p1) - max(p2, p3) - t32[r]
+
+
+@njit(cache=True)
+def lag_rows_live_screened(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reach,
+                           mark, sel, x32, r32, n32, t32, margin):
+    """``lag_rows_live`` with the screen: an unmarked row (its normal force is then 0: rows
+    leave ``mark`` only with lam set to 0, and join it lagged) whose screened gap bound is at
+    least ``reach`` + ``LIVE_SLACK`` + ``margin`` is inactive at x as ``lag_rows_live`` finds
+    it, which would leave it as it is (lam 0, unmarked). Same results. ``x32``: x in float32;
+    ``target`` may be lower than the screen's copy (the solve's targets): the bound only rises."""
+    count = 0
+    ns = 0
+    dl, top, dgap = 0.0, 0.0, 0.0
+    lim = reach + LIVE_SLACK + margin
+    for r in range(rows.shape[0]):
+        if mark[r] == 0 and _gap_bound32(x32, r32, n32, t32, is_vf, r) >= lim:
+            continue
+        count, ns, dl, top, dgap = _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf,
+                                             coef, kr, lam, reach, mark, sel, r, count, ns, dl,
+                                             top, dgap)
+    return count, ns, dl, top, dgap
+
+
+@njit(cache=True)
+def extend_live_screened(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, mark,
+                         sel, xb32, r32, n32, t32, margin):
+    """``extend_live`` with the screen (``xb32``: xb in float32): the float64 test only for
+    the unmarked rows whose screened bound at xb is below ``LIVE_SLACK`` + ``margin``. Same
+    results."""
+    ns = 0
+    lim = LIVE_SLACK + margin
+    for r in range(rows.shape[0]):
+        if mark[r] == 0:
+            if (_gap_bound32(xb32, r32, n32, t32, is_vf, r) < lim
+                    and _gap_bound(xb, rows, nrm, target, is_vf, r) < LIVE_SLACK):
+                _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
+                mark[r] = 1
+        if mark[r]:
+            sel[ns] = r
+            ns += 1
+    return ns
+
+
 @njit(cache=True)
 def start_targets(x, rows, nrm, target, coef, out, sel):
     """``start_targets_on`` for every row in ``sel``."""

@@ -58,7 +58,9 @@ concave lower bound of the gap, ``_gap_bound``), hold no energy, so leaving them
 (positions bitwise unchanged); on graphs/bench/cloth_sphere_64.yaml at one substep the pipeline
 hands ~1.2 M rows per substep at impact (a detection margin of the substep's motion), of which
 ~7,000 are live; after a line search only the rows ``extend_live`` listed for its segment
-are visited (``contact.lag_rows_sel``; measured in graphs/bench/implicit_speedups.py). This is
+are visited (``contact.lag_rows_sel``; measured in graphs/bench/implicit_speedups.py), and the
+passes over every row test a float32 copy of the rows first (``contact.screen_fill``; exact, a
+margin far above its rounding sends the rows near the threshold to the float64 test). This is
 a penalty method, not the
 complementarity solve of the Loki supplement eq. 5-7: contacts leave a small penetration (at
 rest ~ g h^2 / contact_stiffness) that the safety projection removes.
@@ -172,9 +174,10 @@ from lokigraph.errors import InputError
 
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
-from .contact import (contact_energy_al, extend_live, lag_contacts_al, lag_rows, lag_rows_live,
-                      lag_rows_sel, row_energy, row_residuals, safety_project, start_targets_on,
-                      update_contact_multipliers)
+from .contact import (contact_energy_al, extend_live, extend_live_screened, lag_contacts_al,
+                      lag_rows, lag_rows_live, lag_rows_live_screened, lag_rows_sel, row_energy,
+                      row_residuals, safety_project, screen_fill, screen_margin,
+                      start_targets_on, update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, limit_energy, scatter_blocks
 from .compliant import compliant_edges, shape_energy
 from .linear import BlockJacobi, Identity, SmoothedAggregation, invert_blocks
@@ -237,6 +240,15 @@ class ImplicitParams(Params):
                                 "implicit_drop.py, 1e-3 / 1e-2: the whole trouser knee 2.14 / "
                                 "2.33 m/s (bound 2.2), the 64x64 drop 2.55 / 2.75 % strain at "
                                 "2.59 / 1.89 s CPU per frame).")
+    cg_forcing: Literal["fixed", "eisenstat_walker"] = Field(
+        "fixed", description="CG tolerance per Newton iteration: 'fixed' cg_tolerance in every "
+        "iteration; 'eisenstat_walker' the inexact-Newton forcing term (Eisenstat and Walker "
+        "1996, choice 2: eta = 0.9 (|g_k| / |g_k-1|)^2, safeguarded by 0.9 eta_k-1^2 where "
+        "that exceeds 0.1) between cg_tolerance and cg_forcing_max, cg_forcing_max at the "
+        "first iteration of a substep (opt-in; measured in graphs/bench/implicit_speedups.py "
+        "--table).")
+    cg_forcing_max: float = Field(0.1, gt=0, lt=1, description="cg_forcing: "
+                                  "eisenstat_walker: the loosest relative CG tolerance [-].")
     preconditioner: Literal["block_jacobi", "amg", "none"] = Field(
         "block_jacobi", description="CG preconditioner: inverse 3x3 diagonal blocks, pyamg "
         "smoothed aggregation (one V-cycle, rebuilt per Newton iteration), or none (plain CG, "
@@ -558,6 +570,10 @@ class ImplicitSolver(Behavior):
 
     stage = "solve"
     solver = "implicit"
+    #: the single-precision screen of the live-row tests (``contact.screen_fill``; exact, the
+    #: results are bitwise those without it); False only to measure it
+    #: (graphs/bench/implicit_speedups.py)
+    screen_rows = True
     requires = (Dynamic,)
     reads_optional = ("particle_f", "constraints", "kinematic_q", "drag")
     writes = ("particle_q", "particle_qd")
@@ -934,6 +950,25 @@ class ImplicitSolver(Behavior):
             d.rows["sets"].append((rows, nrm, tgt_solve, mu, buf[0][:m], buf[1][:m],
                                    buf[2][:m], buf[3][:m], kind == "vf", buf[5][:m],
                                    buf[6][:m], buf[7]))
+        if self.screen_rows:  # the live-row tests' float32 screen of this substep's rows
+            n = ctx.model.particle_count
+            if d.rows.get("x32") is None or len(d.rows["x32"]) != n:
+                d.rows["x32"] = np.zeros((n, 3), np.float32)
+                d.rows["buf32"] = {"vf": None, "ee": None}
+            d.rows["screen"] = []
+            for st in d.rows["sets"]:
+                kind = "vf" if st[8] else "ee"
+                m = len(st[0])
+                b32 = d.rows["buf32"][kind]
+                if b32 is None or b32[0].shape[0] < m:
+                    cap = max(64, 2 * m)
+                    b32 = (np.zeros((cap, 4), np.int32), np.zeros((cap, 3), np.float32),
+                           np.zeros(cap, np.float32))
+                    d.rows["buf32"][kind] = b32
+                r32, n32, t32 = b32[0][:m], b32[1][:m], b32[2][:m]
+                screen_fill(st[0], st[1], st[2], r32, n32, t32)
+                tmax = float(np.abs(t32).max()) if m else 0.0
+                d.rows["screen"].append((r32, n32, t32, tmax))
 
     def _lag_rows(self, ctx, d, x, live=False, on_segment=False):
         """Lag coefficients and normal forces of the contact rows at x; returns
@@ -948,11 +983,25 @@ class ImplicitSolver(Behavior):
         m = ctx.model
         h2k = self.params.contact_stiffness / (h * h)
         act, dl, top, dgap = 0, 0.0, 0.0, 0.0
-        for rows, nrm, tgt, mu, coef, kr, lam, lam_prev, is_vf, mark, sel, ns in d.rows["sets"]:
+        x32 = None
+        if live and self.screen_rows and not (on_segment and self.params.contact_reach == 0.0):
+            x32 = d.rows["x32"]
+            x32[:] = x
+        for k_set, (rows, nrm, tgt, mu, coef, kr, lam, lam_prev, is_vf, mark, sel,
+                    ns) in enumerate(d.rows["sets"]):
             if live and on_segment and self.params.contact_reach == 0.0:
                 a, ns[0], dl1, top1, dgap1 = lag_rows_sel(
                     x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf, coef, kr, lam,
                     0.0, mark, sel, ns[0])
+                act += a
+                dl, top, dgap = max(dl, dl1), max(top, top1), max(dgap, dgap1)
+                continue
+            if live and self.screen_rows:  # the same, screened (``screen_fill``)
+                r32, n32, t32, tmax = d.rows["screen"][k_set]
+                a, ns[0], dl1, top1, dgap1 = lag_rows_live_screened(
+                    x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf, coef, kr, lam,
+                    self.params.contact_reach, mark, sel, x32, r32, n32, t32,
+                    screen_margin(x, tmax))
                 act += a
                 dl, top, dgap = max(dl, dl1), max(top, top1), max(dgap, dgap1)
                 continue
@@ -981,7 +1030,17 @@ class ImplicitSolver(Behavior):
         """Before a line search from x toward xb: the rows live somewhere on the segment join
         the live rows, lagged at x (``extend_live``)."""
         h2k = self.params.contact_stiffness / (ctx.dt * ctx.dt)
-        for rows, nrm, tgt, mu, coef, kr, lam, _lp, is_vf, mark, sel, ns in d.rows["sets"]:
+        if self.screen_rows:  # the same, screened (``screen_fill``)
+            xb32 = d.rows["x32"]
+            xb32[:] = xb
+        for k_set, (rows, nrm, tgt, mu, coef, kr, lam, _lp, is_vf, mark, sel,
+                    ns) in enumerate(d.rows["sets"]):
+            if self.screen_rows:
+                r32, n32, t32, tmax = d.rows["screen"][k_set]
+                ns[0] = extend_live_screened(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k,
+                                             rows, nrm, tgt, is_vf, coef, kr, lam, mark, sel,
+                                             xb32, r32, n32, t32, screen_margin(xb, tmax))
+                continue
             ns[0] = extend_live(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k, rows, nrm,
                                 tgt, is_vf, coef, kr, lam, mark, sel)
 
@@ -1081,9 +1140,21 @@ class ImplicitSolver(Behavior):
         # substep (the analytic colliders keep the relative test alone: with the gap test the
         # sticking rope of tests/test_implicit_capstan.py creeps 0.81 mm instead of 0.012 mm)
         gap_tol = P.newton_tolerance * h
+        ew = P.cg_forcing == "eisenstat_walker"
+        g_prev, eta = 0.0, P.cg_forcing_max  # cg_forcing: eisenstat_walker
         for it_n in range(1, n_it + 1):
             c["newton"] += 1
             E0 = self._potential(ctx, d, xs, 2, opts, xt, g)
+            cg_tol = P.cg_tolerance
+            if ew:
+                gn = float(np.sqrt(np.vdot(g, g)))
+                if g_prev > 0.0:
+                    e_new = 0.9 * (gn / g_prev) ** 2
+                    if 0.9 * eta * eta > 0.1:
+                        e_new = max(e_new, 0.9 * eta * eta)
+                    eta = min(e_new, P.cg_forcing_max)
+                g_prev = gn
+                cg_tol = max(eta, P.cg_tolerance)
             d.precond.setup(d.A, d.diag)
             neg = w["du"]
             np.negative(g, out=neg)
@@ -1092,7 +1163,7 @@ class ImplicitSolver(Behavior):
             if d.elim is not None:  # compliant unknowns apart: -g_c by their diagonal block
                 np.copyto(d.elim_rhs, neg[d.elim])
                 neg[d.elim] = 0.0
-            it, res = d.precond.solve(d.A, neg, P.cg_tolerance, P.cg_iterations, dx, w)
+            it, res = d.precond.solve(d.A, neg, cg_tol, P.cg_iterations, dx, w)
             if d.elim is not None:
                 invert_blocks(d.A.data[d.elim_diag], d.elim_inv)
                 dx[d.elim] = np.einsum("nij,nj->ni", d.elim_inv, d.elim_rhs)
