@@ -60,7 +60,9 @@ hands ~1.2 M rows per substep at impact (a detection margin of the substep's mot
 ~7,000 are live; after a line search only the rows ``extend_live`` listed for its segment
 are visited (``contact.lag_rows_sel``; measured in graphs/bench/implicit_speedups.py), and the
 passes over every row test a float32 copy of the rows first (``contact.screen_fill``; exact, a
-margin far above its rounding sends the rows near the threshold to the float64 test). This is
+margin far above its rounding sends the rows near the threshold to the float64 test) and the
+segment extensions keep a running lower bound per row (``contact.extend_live_tracked``; exact).
+This is
 a penalty method, not the
 complementarity solve of the Loki supplement eq. 5-7: contacts leave a small penetration (at
 rest ~ g h^2 / contact_stiffness) that the safety projection removes.
@@ -174,10 +176,10 @@ from lokigraph.errors import InputError
 
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
-from .contact import (contact_energy_al, extend_live, extend_live_screened, lag_contacts_al,
+from .contact import (contact_energy_al, extend_live, extend_live_tracked, lag_contacts_al,
                       lag_rows, lag_rows_live, lag_rows_live_screened, lag_rows_sel, row_energy,
                       row_residuals, safety_project, screen_fill, screen_margin,
-                      start_targets_on, update_contact_multipliers)
+                      start_targets_on, tracked_drop, update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, limit_energy, scatter_blocks
 from .compliant import compliant_edges, shape_energy
 from .linear import BlockJacobi, Identity, SmoothedAggregation, invert_blocks
@@ -954,7 +956,9 @@ class ImplicitSolver(Behavior):
             n = ctx.model.particle_count
             if d.rows.get("x32") is None or len(d.rows["x32"]) != n:
                 d.rows["x32"] = np.zeros((n, 3), np.float32)
+                d.rows["xb"] = np.zeros((n, 3))
                 d.rows["buf32"] = {"vf": None, "ee": None}
+                d.rows["lb"] = {}
             d.rows["screen"] = []
             for st in d.rows["sets"]:
                 kind = "vf" if st[8] else "ee"
@@ -968,7 +972,11 @@ class ImplicitSolver(Behavior):
                 r32, n32, t32 = b32[0][:m], b32[1][:m], b32[2][:m]
                 screen_fill(st[0], st[1], st[2], r32, n32, t32)
                 tmax = float(np.abs(t32).max()) if m else 0.0
-                d.rows["screen"].append((r32, n32, t32, tmax))
+                lb = d.rows["lb"].get(kind)
+                if lb is None or len(lb) < m:
+                    lb = d.rows["lb"][kind] = np.zeros(max(64, 2 * m))
+                d.rows["screen"].append((r32, n32, t32, tmax, lb[:m]))
+            d.rows["xb_set"] = False  # extend_live_tracked: no bounds yet this substep
 
     def _lag_rows(self, ctx, d, x, live=False, on_segment=False):
         """Lag coefficients and normal forces of the contact rows at x; returns
@@ -997,7 +1005,7 @@ class ImplicitSolver(Behavior):
                 dl, top, dgap = max(dl, dl1), max(top, top1), max(dgap, dgap1)
                 continue
             if live and self.screen_rows:  # the same, screened (``screen_fill``)
-                r32, n32, t32, tmax = d.rows["screen"][k_set]
+                r32, n32, t32, tmax, _lb = d.rows["screen"][k_set]
                 a, ns[0], dl1, top1, dgap1 = lag_rows_live_screened(
                     x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf, coef, kr, lam,
                     self.params.contact_reach, mark, sel, x32, r32, n32, t32,
@@ -1030,16 +1038,18 @@ class ImplicitSolver(Behavior):
         """Before a line search from x toward xb: the rows live somewhere on the segment join
         the live rows, lagged at x (``extend_live``)."""
         h2k = self.params.contact_stiffness / (ctx.dt * ctx.dt)
-        if self.screen_rows:  # the same, screened (``screen_fill``)
-            xb32 = d.rows["x32"]
-            xb32[:] = xb
+        if self.screen_rows:  # the same, with running bounds (``extend_live_tracked``)
+            xp = d.rows["xb"]
+            drop = tracked_drop(xb, xp) if d.rows["xb_set"] else np.inf
+            xp[:] = xb
+            d.rows["xb_set"] = True
         for k_set, (rows, nrm, tgt, mu, coef, kr, lam, _lp, is_vf, mark, sel,
                     ns) in enumerate(d.rows["sets"]):
             if self.screen_rows:
-                r32, n32, t32, tmax = d.rows["screen"][k_set]
-                ns[0] = extend_live_screened(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k,
-                                             rows, nrm, tgt, is_vf, coef, kr, lam, mark, sel,
-                                             xb32, r32, n32, t32, screen_margin(xb, tmax))
+                lb = d.rows["screen"][k_set][4]
+                ns[0] = extend_live_tracked(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k,
+                                            rows, nrm, tgt, is_vf, coef, kr, lam, mark, sel, lb,
+                                            drop)
                 continue
             ns[0] = extend_live(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k, rows, nrm,
                                 tgt, is_vf, coef, kr, lam, mark, sel)
