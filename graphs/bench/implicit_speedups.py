@@ -12,7 +12,24 @@ The speedups (neither changes a result: the positions are bitwise the same in ev
   segment (``contact.lag_rows_sel``) instead of a pass over every row (``lag_rows_live``): the
   gap bound is concave, so a row it left out is inactive all along the segment;
 * the block-Jacobi PCG fuses its vector passes into the matrix product and the preconditioner
-  (``linear.pcg_block_jacobi``; ``pcg_block_jacobi_unfused`` is the loop before).
+  (``linear.pcg_block_jacobi``; ``pcg_block_jacobi_unfused`` is the loop before);
+* ``lag_rows_live`` tests a float32 copy of the rows first (``contact.screen_fill``,
+  ``lag_rows_live_screened``) and the segment extensions keep a running lower bound per row
+  (``contact.extend_live_tracked``): switched off with the solver's ``screen_rows`` attribute
+  (per instance; ``before`` below, and ``screen_rows=0`` in ``--table``).
+
+``--table`` steps settings side by side (interleaved per frame, ABBA) on the drape and
+cloth-on-sphere bench scenes and prints CPU and wall ms/frame, Newton and CG iterations per
+frame, the worst edge strain, the most intersecting triangle pairs and whether the positions
+were bitwise those of the first setting in every frame:
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_speedups.py --table \
+        --scenes cloth_sphere_64 cloth_sphere_128 drape_64 drape_128 --frames 10 \
+        --settings before:screen_rows=0 after ew:cg_forcing=eisenstat_walker \
+        ew5:cg_forcing=eisenstat_walker,cg_forcing_max=0.5 nucleus
+
+(a setting is ``name`` or ``name:k=v,...`` with implicit_solver overrides; ``nucleus`` runs the
+scene's own solver settings; the cloth-on-sphere scenes run the implicit solver at 1 substep.)
 
 Measured (128x128, 1 substep, frames 6-10: the impact, Newton at its 20 cap and CG at its 500
 cap in nearly every iteration; the shared 2-core machine at load 3-5; CPU s summed over the
