@@ -287,3 +287,40 @@ def test_hard_limit_holds_a_32x32_drop(scene_file):
     print(worst)
     assert worst[0.02] < 0.025, worst
     assert worst[0.0] > 0.035, worst
+
+
+@pytest.mark.slow
+def test_eisenstat_walker_forcing_cuts_cg_on_a_32x32_drop(scene_file):
+    """cg_forcing: eisenstat_walker (opt-in) on the 32 x 32 drop at 1 substep, 12 frames: under
+    half the CG iterations of the fixed tolerance, the worst edge strain under the issue's 5 %
+    bound and no penetrating pair in any frame (graphs/bench/implicit_speedups.py --table
+    measures the 64 x 64 and 128 x 128 drops)."""
+    from pathlib import Path
+
+    from lokigraph.bench.sweep import max_strain
+    from lokigraph.compile import compile_scene
+    from lokigraph.run import Simulation
+    from lokigraph.scene import load_scene
+
+    text = (Path(__file__).resolve().parent.parent / "graphs" / "bench"
+            / "cloth_sphere_64.yaml").read_text()
+    assert "[64, 64]" in text and "substeps: 2" in text
+    res = {}
+    for forcing in ("fixed", "eisenstat_walker"):
+        path = scene_file(text.replace("[64, 64]", "[32, 32]").replace(
+            "substeps: 2", "substeps: 1\nsolver: implicit\ngraph_overrides: "
+            f"{{implicit_solver: {{cg_forcing: {forcing}, cg_forcing_max: 0.5}}}}"),
+            f"drop_{forcing}.yaml")
+        c = compile_scene(load_scene(path))
+        sim = Simulation(c)
+        w, cg = 0.0, 0
+        for _ in range(12):
+            s = sim.step_frame()
+            assert np.isfinite(sim.state.particle_q).all()
+            assert s["penetrations"] == 0
+            cg += s.get("cg_iterations", 0)
+            w = max(w, max_strain(c, sim.state.particle_q))
+        res[forcing] = (cg, w)
+    print(res)
+    assert res["eisenstat_walker"][0] < 0.5 * res["fixed"][0], res
+    assert res["eisenstat_walker"][1] < 0.05, res
