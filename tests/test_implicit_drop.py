@@ -9,13 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lokigraph.behaviors.solvers.implicit.contact import (LIVE_SLACK, _gap_bound, extend_live,
-                                                          extend_live_tracked, lag_rows,
-                                                          lag_rows_live,
-                                                          lag_rows_live_screened, lag_rows_sel,
-                                                          row_energy, screen_fill,
-                                                          screen_margin, start_targets,
-                                                          start_targets_on, tracked_drop)
+from lokigraph.behaviors.solvers.implicit.contact import (extend_live, lag_rows, lag_rows_live,
+                                                          lag_rows_sel, row_energy,
+                                                          start_targets, start_targets_on)
 from lokigraph.behaviors.solvers.implicit.energy import limit_energy
 
 
@@ -115,69 +111,6 @@ def test_lag_after_a_line_search_visits_only_the_listed_rows():
                 changed += int(ra[1] != ns0)
             x = x + 0.5 * dx
     assert changed > 0
-
-
-def test_screened_and_tracked_live_rows_are_bitwise_the_plain_ones():
-    """The float32 screen of ``lag_rows_live`` (``screen_fill``, ``lag_rows_live_screened``) and
-    the running per-row bounds of ``extend_live_tracked`` give bitwise the coefficients,
-    stiffnesses, normal forces, marks, live lists and returned maxima of the plain float64
-    kernels, over a sequence of segments (the bounds carried from call to call), with rows
-    whose gap bound lies within 1e-9 m of the threshold (where float32 rounding alone would
-    decide wrongly) as well as far ones and the solve's targets lowered below the screen's
-    copy; the screen and the bounds do leave rows out (their margins are not so wide that every
-    row reaches the float64 test)."""
-    rng = np.random.default_rng(5)
-    n, m = 80, 600
-    mass = np.full(n, 1e-3)
-    fixed = np.zeros(n, bool)
-    fixed[:2] = True
-    near = skipped = 0
-    for is_vf in (True, False):
-        x = rng.uniform(-0.05, 0.05, size=(n, 3)) + np.array([0.7, 1.1, -0.4])
-        x[:, 1] += rng.uniform(-0.01, 0.03, size=n)
-        rows, nrm, tgt = _rows(rng, n, m)
-        gb = np.array([_gap_bound(x, rows, nrm, tgt, is_vf, r) for r in range(m)])
-        tgt = tgt + np.where(rng.random(m) < 0.3, gb - LIVE_SLACK, 0.0)  # bound = slack
-        tgt += np.where(rng.random(m) < 0.5, rng.uniform(-1e-9, 1e-9, m), 0.0)
-        r32, n32, t32 = np.zeros((m, 4), np.int32), np.zeros((m, 3), np.float32), np.zeros(
-            m, np.float32)
-        screen_fill(rows, nrm, tgt, r32, n32, t32)
-        tmax = float(np.abs(t32).max())
-        tsolve = tgt - np.where(rng.random(m) < 0.2, 1e-3, 0.0)  # lowered targets
-        lb, xprev = np.zeros(m), None
-        for trial in range(6):
-            dx = rng.normal(size=(n, 3)) * 0.004 * (0.5 ** trial)
-            dx[fixed] = 0.0
-            a = [np.zeros((m, 4)), np.zeros(m), np.zeros(m), np.zeros(m, np.uint8),
-                 np.zeros(m, np.int64)]
-            b = [v.copy() for v in a]
-            for reach in (0.001, 0.0):
-                ra = lag_rows_live(x, fixed, mass, 100.0, rows, nrm, tsolve, is_vf, *a[:3],
-                                   reach, a[3], a[4])
-                rb = lag_rows_live_screened(x, fixed, mass, 100.0, rows, nrm, tsolve, is_vf,
-                                            *b[:3], reach, b[3], b[4],
-                                            x.astype(np.float32), r32, n32, t32,
-                                            screen_margin(x, tmax))
-                assert ra == rb
-                for u, w in zip(a[:4], b[:4]):
-                    assert np.array_equal(u, w)
-                assert np.array_equal(a[4][:ra[1]], b[4][:rb[1]])
-            for xb in (x + dx, x + 0.5 * dx):  # two extensions in a row, as the solver
-                drop = np.inf if xprev is None else tracked_drop(xb, xprev)
-                before = lb - drop
-                na = extend_live(xb, x, fixed, mass, 100.0, rows, nrm, tsolve, is_vf, *a)
-                nb = extend_live_tracked(xb, x, fixed, mass, 100.0, rows, nrm, tsolve, is_vf,
-                                         *b, lb, drop)
-                xprev = xb.copy()
-                skipped += int(np.sum(np.isfinite(before) & (before == lb)))
-                assert na == nb and na < m
-                for u, w in zip(a[:4], b[:4]):
-                    assert np.array_equal(u, w)
-                assert np.array_equal(a[4][:na], b[4][:nb])
-            gbx = np.array([_gap_bound(x, rows, nrm, tsolve, is_vf, r) for r in range(m)])
-            near += int((np.abs(gbx - LIVE_SLACK) < 1e-8).sum())
-            x = x + 0.5 * dx
-    assert near > 0 and skipped > 0
 
 
 def test_start_targets_hold_only_the_flagged_rows():

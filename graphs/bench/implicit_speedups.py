@@ -12,11 +12,15 @@ The speedups (neither changes a result: the positions are bitwise the same in ev
   segment (``contact.lag_rows_sel``) instead of a pass over every row (``lag_rows_live``): the
   gap bound is concave, so a row it left out is inactive all along the segment;
 * the block-Jacobi PCG fuses its vector passes into the matrix product and the preconditioner
-  (``linear.pcg_block_jacobi``; ``pcg_block_jacobi_unfused`` is the loop before);
-* ``lag_rows_live`` tests a float32 copy of the rows first (``contact.screen_fill``,
-  ``lag_rows_live_screened``) and the segment extensions keep a running lower bound per row
-  (``contact.extend_live_tracked``): switched off with the solver's ``screen_rows`` attribute
-  (per instance; ``before`` below, and ``screen_rows=0`` in ``--table``).
+  (``linear.pcg_block_jacobi``; ``pcg_block_jacobi_unfused`` is the loop before).
+
+Measured and not kept (exact, bitwise the same positions, but not paying; commits 10dcd4b and
+5006e8a of branch he): a float32 copy of the contact rows screening the live-row tests
+(``lag_rows_live`` 186 -> 30 ms per call; on ``extend_live`` nothing: its cost is the
+vertex gathers, not the row data), and a running lower bound per row carried from one segment
+extension to the next (decremented by twice the largest vertex move; per vertex instead: slower).
+cloth_sphere_128, frames 2-10, interleaved, CPU ms/frame without / with both: total 10,740 /
+10,460 (0.974), lag 1,796 / 1,732; cloth_sphere_64 over four runs 0.91-1.09x.
 
 ``--table`` steps settings side by side (interleaved per frame, ABBA) on the drape and
 cloth-on-sphere bench scenes and prints CPU and wall ms/frame, Newton and CG iterations per
@@ -25,7 +29,7 @@ were bitwise those of the first setting in every frame:
 
     NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_speedups.py --table \
         --scenes cloth_sphere_64 cloth_sphere_128 drape_64 drape_128 --frames 10 \
-        --settings before:screen_rows=0 after ew:cg_forcing=eisenstat_walker \
+        --settings fixed ew:cg_forcing=eisenstat_walker \
         ew5:cg_forcing=eisenstat_walker,cg_forcing_max=0.5 nucleus
 
 (a setting is ``name`` or ``name:k=v,...`` with implicit_solver overrides; ``nucleus`` runs the
@@ -34,14 +38,16 @@ scene's own solver settings; the cloth-on-sphere scenes run the implicit solver 
 Measured with it (frames 2-10, the machine at load ~5: wall 2.2-2.5x CPU; CPU ms/frame, CG
 iterations per frame, worst strain, 0 intersecting pairs in every frame of every run):
 
-    cloth_sphere_64   before 1,929 / 3,597 / 4.45 %   after 1,798 (0.932x, bitwise)
+    cloth_sphere_64   fixed (defaults) 1,798 / 3,597 / 4.45 %
                       cg_forcing eisenstat_walker, max 0.1: 962 / 513 / 5.65 %; max 0.5: 737 / 235 / 3.08 %
                       nucleus 401 / 6.63 %
-    cloth_sphere_128  before 10,621 / 4,720 / 3.57 %  after 9,613 (0.905x, bitwise)
+    cloth_sphere_128  fixed (defaults) 9,613 / 4,720 / 3.57 %
                       max 0.1: 4,507 / 631 / 7.01 %; max 0.5: 2,333 / 286 / 3.07 %
                       nucleus 2,817 / 15.93 %
-    drape_64          (no contact rows: before = after) 2,987 / 9,419 / 0.26 %;
+    drape_64          fixed 2,987 / 9,419 / 0.26 %;
                       max 0.1: 2,181 / 2,954; max 0.5: 1,992 / 1,957 / 0.26 %; nucleus 127 / 1.11 %
+    drape_128         (frames 2-5) fixed 16,114 / 11,729 / 1.40 %; max 0.5: 7,577 / 2,507 /
+                      1.43 %; nucleus 498 / 1.72 %
 
 Where the 128 x 128 impact frame goes (frames 6-10 at 1 substep, 1 thread, defaults; cProfile
 of frames 2-10 and per-iteration logs at frame 8): Newton at its 20 cap in every contact
@@ -49,8 +55,8 @@ substep, CG at its 500 cap in 19 of 20 iterations (relative residual 1e-3 .. 4e-
 CG iteration idle, ~400 ms per solve), 0-2 line-search halvings per iteration, Newton steps still
 0.02-0.1 m/s at the cap (tolerance 1e-3) while |grad| falls from ~70 to ~4; 1.43 M vertex-face
 and 3.64 M edge-edge rows per substep, 10-60 k of them live. CPU: PCG 34 %, the collision
-pipeline's detection and projection (behaviors/collision) ~30 %, the live-row passes 15 % before
-this stop's screens, row_energy 4 %, assembly's scatter_blocks 3 %, dihedral_energy 2 %.
+pipeline's detection and projection (behaviors/collision) ~30 %, the live-row passes 15 %
+(extend_live 9 %, lag_rows_live 5 %), row_energy 4 %, assembly's scatter_blocks 3 %, dihedral_energy 2 %.
 
 Measured (128x128, 1 substep, frames 6-10: the impact, Newton at its 20 cap and CG at its 500
 cap in nearly every iteration; the shared 2-core machine at load 3-5; CPU s summed over the
@@ -107,7 +113,6 @@ def make(n, before):
     acc = defaultdict(float)
     sv = [b.behavior for b in sim.schedule.all() if isinstance(b.behavior, S.ImplicitSolver)][0]
     if before:
-        sv.screen_rows = False  # per instance
         prepare = sv._prepare
 
         def prep(ctx, d):
@@ -178,7 +183,6 @@ def table_sim(scene, setting):
     name, ov = setting
     sc = load_scene(D.BENCH / f"{scene}.yaml")
     ov = dict(ov)
-    screen = bool(ov.pop("screen_rows", 1))
     if name != "nucleus":
         sub = int(ov.pop("substeps", 1 if scene.startswith("cloth_sphere") else
                          sc.spec.substeps))
@@ -187,12 +191,7 @@ def table_sim(scene, setting):
         sc.spec = sc.spec.model_copy(update={"solver": "implicit", "graph_overrides": go,
                                              "substeps": sub})
     c = compile_scene(sc)
-    sim = Simulation(c)
-    if not screen:  # the live-row tests' float32 screen off (per instance; exact either way)
-        for b in sim.schedule.all():
-            if isinstance(b.behavior, S.ImplicitSolver):
-                b.behavior.screen_rows = False
-    return sim, c
+    return Simulation(c), c
 
 
 def _frame_measures(c):
@@ -223,17 +222,19 @@ def table(scenes, settings, frames, skip=1):
     order reverses every frame); after the first ``skip`` frames (JIT warm-up) the CPU
     (process_time) and wall ms per frame, Newton and CG iterations per frame, and over every
     frame the worst edge strain and the most intersecting triangle pairs, and whether the
-    positions were bitwise those of the first setting in every frame. Returns the rows.
-    A setting ``screen_rows=0`` switches the solver's float32 live-row screen off."""
+    positions were bitwise those of the first setting in every frame. Returns the rows."""
     out = []
     print(f"{'scene':17} {'setting':22} {'CPU ms/fr':>9} {'wall ms/fr':>10} {'CPU ratio':>9} "
           f"{'Newton/fr':>9} {'CG/fr':>8} {'max strain %':>12} {'max pairs':>9} "
           f"{'bitwise':>7}", flush=True)
     for scene in scenes:
         runs = {}
+        phases = {}
         for st in settings:
             sim, c = table_sim(scene, st)
             runs[st[0]] = (sim, _frame_measures(c))
+            phases[st[0]] = defaultdict(float)
+            D._timers(sim, phases[st[0]])  # CPU per phase (implicit_drop's split)
         acc = {k: defaultdict(float) for k in runs}
         first = settings[0][0]
         same = {k: True for k in runs}
@@ -248,6 +249,8 @@ def table(scenes, settings, frames, skip=1):
                 a = acc[k]
                 a["strain"] = max(a["strain"], strain)
                 a["pairs"] = max(a["pairs"], pairs)
+                if f == skip - 1:
+                    phases[k].clear()
                 if f >= skip:
                     a["cpu"] += dt
                     a["wall"] += dw
@@ -263,9 +266,11 @@ def table(scenes, settings, frames, skip=1):
                        ratio=a["cpu"] / base, newton=a["newton"] / m, cg=a["cg"] / m,
                        strain=100 * a["strain"], pairs=int(a["pairs"]), bitwise=same[k])
             out.append(row)
+            row["phases"] = {p: 1e3 * phases[k].get(p, 0.0) / m for p in KEYS}
             print(f"{scene:17} {k:22} {row['cpu']:9.0f} {row['wall']:10.0f} {row['ratio']:9.3f} "
                   f"{row['newton']:9.1f} {row['cg']:8.0f} {row['strain']:12.2f} "
-                  f"{row['pairs']:9d} {str(row['bitwise']):>7}", flush=True)
+                  f"{row['pairs']:9d} {str(row['bitwise']):>7}  CPU ms/frame: "
+                  + " ".join(f"{p} {v:.0f}" for p, v in row["phases"].items()), flush=True)
     return out
 
 
