@@ -156,6 +156,21 @@ SPACETIME_CROSS = True
 #: intersecting pair and no vertex inside in any frame either way, largest strain 93.4 ->
 #: 90.3 %: not within 1.5x even so, and unsafe (above)
 SPACETIME_PREDICTED = False
+#: space-time boxes in the detection over the predicted motion x -> x1 made exact by a check:
+#: the rows of ``CollisionDetect`` (self pairs and, as ``SPACETIME_CROSS``, pairs of two
+#: elements) come from space-time boxes inflated by ``RELATIVE_SLACK`` [m] more, and before
+#: every contact pass of the iterations ``_relative_flags`` finds the vertices whose
+#: deviation from the detected end (d = p - x1) differs, on some axis, from that of a vertex
+#: near it at the iterate p by more than 2 (infl_min + slack) - target_max; only a pair of two
+#: such vertices' primitives can be missing from the rows and within its target at p (the
+#: bound is derived in ``_relative_flags``). Where there is none the rows hold every pair
+#: that can be active at p; where there is one the contacts are detected again in space-time
+#: over x -> p (same slack) and the check then measures from p. False: swept boxes there
+#: (``SPACETIME_PREDICTED`` alone is the unchecked variant)
+SPACETIME_RELATIVE = False
+#: [m] extra inflation of the boxes of ``SPACETIME_RELATIVE``'s detections: the relative
+#: deviation the check tolerates grows by twice this
+RELATIVE_SLACK = 0.0015
 #: the swept-box detections (over the predicted motion) and the space-time ones (final rounds,
 #: CCD) query into their own pair buffers: a buffer sizes the single traversal pass's scratch
 #: from its previous query, and alternating 222k swept and 78k space-time edge pairs (64 x 64
@@ -305,6 +320,14 @@ class _Contacts:
     ee_lb: np.ndarray = field(default_factory=lambda: np.zeros(256))
     n_vf_sel: int = 0
     n_ee_sel: int = 0
+    # ``SPACETIME_RELATIVE``: end positions of the motion the space-time rows were detected for
+    # (None: the rows are not relative ones), its slack [m], a copy of an iterate they were
+    # detected again for, per group (bound, largest target) of the check, and its scratch
+    rel_ref: np.ndarray = None
+    rel_slack: float = 0.0
+    p_rel: np.ndarray = None
+    rel_bounds: list = field(default_factory=list)
+    rel_work: dict = field(default_factory=dict)
     cull_passes: int = 0  # projection passes over the culled rows / over every row (counts)
     full_passes: int = 0
 
@@ -444,8 +467,14 @@ class CollisionDetect(Behavior):
         kin = m.particle_kinematic
         if kin.any():
             x1[kin] = ctx.control.kinematic_q[kin]
-        tolerant = _detect_all(d, x, x1, st.particle_qd, h,
-                               SPACETIME and SPACETIME_PREDICTED)
+        if SPACETIME_RELATIVE:
+            tolerant = _detect_all(d, x, x1, st.particle_qd, h, "relative", RELATIVE_SLACK)
+            _relative_setup(d, st.particle_qd, h, RELATIVE_SLACK)
+            d.rel_ref = x1
+        else:
+            d.rel_ref = None
+            tolerant = _detect_all(d, x, x1, st.particle_qd, h,
+                                   SPACETIME and SPACETIME_PREDICTED)
         d.tolerant_count = tolerant
         ctx.stats["contacts_vf"] = ctx.stats.get("contacts_vf", 0) + len(d.vf)
         ctx.stats["contacts_ee"] = ctx.stats.get("contacts_ee", 0) + len(d.ee)
@@ -521,10 +550,19 @@ def _ordered(g, cand, order, out, n_a, a, b=None):
     return bp.sort_pairs(cand, n_a, out, ra, rb)
 
 
-def _st_group(g, elem):
+def _st_group(g, elem, spacetime=True):
     """The space-time boxes' group labels of primitives of elements ``elem``: the elements
     themselves (pairs of two elements by their swept boxes), or one label for all
-    (``SPACETIME_CROSS``: every pair tested in space-time)."""
+    (``SPACETIME_CROSS``: every pair tested in space-time). ``spacetime`` "relative"
+    (``SPACETIME_RELATIVE``): one label for the primitives of every dynamic element, their
+    own for a kinematic element's (pairs with a collider by their swept boxes)."""
+    if spacetime == "relative":
+        key = ("st_group_rel", "t" if elem is g.tri_elem else "e" if elem is g.edge_elem
+               else "v")  # the vertices' elements: g.vert_elem[g.verts], fixed
+        z = g.bufs.get(key)
+        if z is None:
+            z = g.bufs[key] = np.where(g.kinematic_el[elem], elem + 1, 0).astype(np.int64)
+        return z
     if not SPACETIME_CROSS:
         return elem
     z = g.bufs.get(("st_group", len(elem)))
@@ -557,9 +595,9 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
             if spacetime:
                 ev = g.vert_elem[g.verts]
                 sv = bp.spacetime_prim_boxes(x, g.verts, x1, infl, ~g.kinematic_el[ev],
-                                             _st_group(g, ev), _scratch(g, "sv_p", (nv, 14)))
+                                             _st_group(g, ev, spacetime), _scratch(g, "sv_p", (nv, 14)))
                 st = bp.spacetime_prim_boxes(x, g.tris, x1, infl, ~g.kinematic_el[g.tri_elem],
-                                             _st_group(g, g.tri_elem),
+                                             _st_group(g, g.tri_elem, spacetime),
                                              _scratch(g, "st_p", (nt, 14)))
             cand = bp.column_query_pairs(lo_v, hi_v, lo_t, hi_t, g.verts, g.tris, out=out,
                                          st_a=sv, st_b=st)
@@ -571,9 +609,9 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
                 # paired and only the self pairs of an element are tested in space-time
                 ev = g.vert_elem[g.verts]
                 sv = bp.spacetime_boxes(bv, x, g.verts, x1, infl, ~g.kinematic_el[ev],
-                                        _st_group(g, ev), _scratch(g, "sv", (2 * nv - 1, 14)))
+                                        _st_group(g, ev, spacetime), _scratch(g, "sv", (2 * nv - 1, 14)))
                 st = bp.spacetime_boxes(bt, x, g.tris, x1, infl, ~g.kinematic_el[g.tri_elem],
-                                        _st_group(g, g.tri_elem),
+                                        _st_group(g, g.tri_elem, spacetime),
                                         _scratch(g, "st", (2 * nt - 1, 14)))
             cand = bp.query_pairs(bv, bt, g.verts, g.tris, out=out, st_a=sv, st_b=st)
         if order:
@@ -601,14 +639,14 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
         order = CANONICAL_ORDER or (GRID_ORDER if grid else False)
         if grid:
             se = bp.spacetime_prim_boxes(x, g.edges, x1, infl, ~g.kinematic_el[g.edge_elem],
-                                         _st_group(g, g.edge_elem),
+                                         _st_group(g, g.edge_elem, spacetime),
                                          _scratch(g, "se_p", (ne, 14))) \
                 if spacetime else None
             cand = bp.column_query_self(lo_e, hi_e, g.edges, st=se, out=out)
         else:
             be = bp.build_bvh(lo_e, hi_e)
             se = bp.spacetime_boxes(be, x, g.edges, x1, infl, ~g.kinematic_el[g.edge_elem],
-                                    _st_group(g, g.edge_elem),
+                                    _st_group(g, g.edge_elem, spacetime),
                                     _scratch(g, "se", (2 * ne - 1, 14))) \
                 if spacetime else None
             cand = bp.query_self(be, g.edges, st=se, out=out)
@@ -657,15 +695,18 @@ def _vertex_normals_kernel(x, tris, n):
             n[i, 2] /= ln
 
 
-def _detect_all(d, x, x1, v, h, spacetime=False) -> int:
+def _detect_all(d, x, x1, v, h, spacetime=False, slack=0.0) -> int:
     """Detect and pack the contacts of every group for the motion x -> x1; returns the number
     of proximity-tolerant contacts. ``spacetime``: test the self pairs of every element with
-    space-time boxes (exact for the linear motion x -> x1 only: see ``SPACETIME``)."""
+    space-time boxes (exact for the linear motion x -> x1 only: see ``SPACETIME``); ``slack``
+    [m]: inflate every box by that much more (``SPACETIME_RELATIVE``)."""
     vf_all, ee_all = [], []
     tolerant = 0
     for g in d.groups:  # loop over groups, not primitives
         # boxes of both sets are inflated, so a pair is found within 2 * infl
         infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
+        if slack:
+            infl += slack
         # vertices recently pushed through a kinematic sheet search 4x wider so that the
         # contact pulling them back is not lost when they are deeper than the contact band
         if g.recover.any():
@@ -1621,6 +1662,144 @@ def _rows_hold(c, x, p) -> bool:
     return _box_excess(x, c.det_ref, p) <= c.infl_min - 0.5 * t
 
 
+def _relative_setup(c, v, h, slack):
+    """Per group the check's bound and largest target of ``SPACETIME_RELATIVE`` for rows
+    detected with boxes inflated by ``slack`` more (see ``_relative_flags``): a target is at
+    most twice the largest thickness plus the restitution's 2 restitution |v|_max h."""
+    c.rel_slack = slack
+    c.rel_bounds = []
+    for g in c.groups:
+        if not len(g.verts):
+            c.rel_bounds.append((0.0, 0.0))
+            continue
+        th = np.maximum(g.th_out, g.th_in)[g.verts]
+        t_max = 2.0 * float(th.max())
+        if g.restitution > 0.0:
+            vg = v[g.verts]
+            t_max += 2.0 * g.restitution * h * float(np.sqrt((vg * vg).sum(axis=1).max()))
+        infl_min = float(th.min()) + 0.5 * g.margin + slack
+        c.rel_bounds.append((2.0 * infl_min - t_max, t_max))
+
+
+@njit(cache=True)
+def _relative_flags(x, p, ref, verts, kin, edges, bound, t_max, mn, mx, kex, flags):
+    """Dynamic vertices of ``verts`` (flags[k] = True for verts[k]) at risk at the iterate
+    ``p`` for rows detected over x -> ref (``SPACETIME_RELATIVE``); returns their count.
+    ``kin``: per entry of ``verts``, kinematic; ``mn``, ``mx`` (M, 3), ``kex`` (M,): scratch,
+    M a power of two. A dynamic vertex is at risk when its deviation d = p - ref differs on
+    some axis by more than ``bound`` from that of a dynamic vertex in a neighbouring cell of
+    a grid over ``p``, or when it lies outside the box of its motion x -> ref by more than
+    ``bound`` less the largest such excess of a kinematic vertex in a neighbouring cell.
+
+    Why this suffices (every box inflated by at least r = infl_min + slack, ``bound`` =
+    2 r - t_max, t_max >= every target; u = ref - x). Pairs of two dynamic primitives A and B
+    are tested in space-time: dropped only when on some axis (say A above B) the swept boxes
+    are apart, min_a min(x_a, ref_a) - r_A > max_b max(x_b, ref_b) + r_B, or the space-time
+    ones are (``broadphase._st_overlap``), min_a x_a - r_A - max_b x_b - r_B > max(0, max_b
+    u_b - min_a u_a). Both give, with p = ref + d, min_a p_a - max_b p_b > r_A + r_B - (max_b
+    d_b - min_a d_a) on that axis, a lower bound of the pair's distance at p: the dropped
+    pair is farther than its target at p unless max_b d_b - min_a d_a > ``bound`` for a
+    vertex a of A and b of B. Pairs with a kinematic primitive B keep their swept boxes
+    (``_st_group``): dropped only when the swept boxes are apart on an axis, which gives
+    min_a p_a - max_b p_b > r_A + r_B - e_a - e_b with e the excess of p outside the box of
+    x -> ref, so they are at risk only when e_a + e_b > ``bound``. A pair within t_max at p
+    has its vertices within 2 L + t_max of each other on every axis (L: the largest extent of
+    an edge along an axis at p, so of any primitive), so with cells that wide a and b lie in
+    neighbouring cells and a (and b, when dynamic) is flagged (hash collisions only merge
+    cells). No flag: every pair that can be within its target at p is among the rows (pairs
+    the filters drop are dropped whichever boxes found them), and a re-detection needs only
+    the flagged vertices' primitives against every primitive."""
+    ext = 0.0
+    for e in range(edges.shape[0]):
+        a, b = edges[e, 0], edges[e, 1]
+        for k in range(3):
+            ext = max(ext, abs(p[a, k] - p[b, k]))
+    cell = (2.0 * ext + t_max) * (1.0 + 1e-9) + 1e-12
+    inv = 1.0 / cell
+    m = mn.shape[0]
+    mask = m - 1
+    for i in range(m):
+        kex[i] = -np.inf
+        for k in range(3):
+            mn[i, k] = np.inf
+            mx[i, k] = -np.inf
+    for q in range(verts.shape[0]):
+        v = verts[q]
+        hsh = bp._hash3(np.int64(np.floor(p[v, 0] * inv)), np.int64(np.floor(p[v, 1] * inv)),
+                        np.int64(np.floor(p[v, 2] * inv)), mask)
+        if kin[q]:
+            kex[hsh] = max(kex[hsh], max(0.0, _excess(x, ref, p, v)))
+        else:
+            for k in range(3):
+                dv = p[v, k] - ref[v, k]
+                mn[hsh, k] = min(mn[hsh, k], dv)
+                mx[hsh, k] = max(mx[hsh, k], dv)
+    count = 0
+    for q in range(verts.shape[0]):
+        flags[q] = False
+        if kin[q]:
+            continue
+        v = verts[q]
+        ci = np.int64(np.floor(p[v, 0] * inv))
+        cj = np.int64(np.floor(p[v, 1] * inv))
+        ck = np.int64(np.floor(p[v, 2] * inv))
+        lo0 = lo1 = lo2 = np.inf
+        hi0 = hi1 = hi2 = -np.inf
+        ke = -np.inf
+        for di in range(-1, 2):
+            for dj in range(-1, 2):
+                for dk in range(-1, 2):
+                    hsh = bp._hash3(ci + di, cj + dj, ck + dk, mask)
+                    lo0 = min(lo0, mn[hsh, 0])
+                    lo1 = min(lo1, mn[hsh, 1])
+                    lo2 = min(lo2, mn[hsh, 2])
+                    hi0 = max(hi0, mx[hsh, 0])
+                    hi1 = max(hi1, mx[hsh, 1])
+                    hi2 = max(hi2, mx[hsh, 2])
+                    ke = max(ke, kex[hsh])
+        d0, d1, d2 = p[v, 0] - ref[v, 0], p[v, 1] - ref[v, 1], p[v, 2] - ref[v, 2]
+        f = not (d0 - lo0 <= bound and hi0 - d0 <= bound and d1 - lo1 <= bound
+                 and hi1 - d1 <= bound and d2 - lo2 <= bound and hi2 - d2 <= bound)  # NaN: flag
+        if not f and ke >= 0.0:
+            f = not (_excess(x, ref, p, v) + ke <= bound)
+        flags[q] = f
+        if f:
+            count += 1
+    return count
+
+
+@njit(cache=True, inline="always")
+def _excess(x, ref, p, v):
+    """Largest distance [m] along an axis by which p[v] lies outside the box of x[v] -> ref[v]
+    (negative inside)."""
+    e = -np.inf
+    for k in range(3):
+        lo = min(x[v, k], ref[v, k])
+        hi = max(x[v, k], ref[v, k])
+        e = max(e, max(lo - p[v, k], p[v, k] - hi))
+    return e
+
+
+def _relative_check(c, x, p) -> int:
+    """Vertices at risk at the iterate ``p`` for the rows of ``SPACETIME_RELATIVE`` (detected
+    over x -> ``c.rel_ref``; ``_relative_flags``), summed over the groups: 0 means the rows
+    hold every pair that can be within its target at ``p``."""
+    n = 0
+    for g, (bound, t_max) in zip(c.groups, c.rel_bounds):
+        nv = len(g.verts)
+        if not nv:
+            continue
+        w = c.rel_work.get(g.name)
+        if w is None or len(w[3]) != nv:
+            m = 1 << max(4, int(2 * nv - 1).bit_length())
+            w = c.rel_work[g.name] = (np.empty((m, 3)), np.empty((m, 3)), np.empty(m),
+                                      np.zeros(nv, np.bool_),
+                                      g.kinematic_el[g.vert_elem[g.verts]].copy())
+        n += _relative_flags(x, p, c.rel_ref, g.verts, w[4], g.edges, bound, t_max, w[0], w[1],
+                             w[2], w[3])
+    return n
+
+
 @njit(cache=True)
 def _max_move(a, b):
     m = 0.0
@@ -1744,7 +1923,19 @@ class CollisionConstraint(ConstraintBehavior):
     def project(self, ctx, d, p):
         c = ctx.state.fields["contacts"]
         w = ctx.model.particle_inv_mass
-        if self.params.redetect and c.det_ref is not None:
+        if c.rel_ref is not None:  # ``SPACETIME_RELATIVE``
+            ctx.stats["relative_checks"] = ctx.stats.get("relative_checks", 0) + 1
+            k = _relative_check(c, ctx.state.particle_q, p)
+            if k:
+                _detect_all(c, ctx.state.particle_q, p, ctx.state.particle_qd, ctx.dt,
+                            "relative", c.rel_slack)
+                if c.p_rel is None or c.p_rel.shape != p.shape:
+                    c.p_rel = np.empty_like(p)
+                c.p_rel[:] = p
+                c.rel_ref = c.det_ref = c.p_rel
+                ctx.stats["relative_detections"] = ctx.stats.get("relative_detections", 0) + 1
+                ctx.stats["relative_flagged"] = ctx.stats.get("relative_flagged", 0) + k
+        elif self.params.redetect and c.det_ref is not None:
             if not _rows_hold(c, ctx.state.particle_q, p):
                 _detect_all(c, ctx.state.particle_q, p, ctx.state.particle_qd, ctx.dt)
                 if c.p_det is None:
@@ -1765,7 +1956,11 @@ class CollisionConstraint(ConstraintBehavior):
         active = 0
         joint = [(b, dd) for b, dd in ctx.constraints if hasattr(b, "project_joint")]
         n_it = max([self.params.final_iterations] + [b.joint_iterations() for b, _ in joint])
-        c.det_ref = c.x1  # the rows come from the detection of CollisionDetect.step
+        if c.rel_ref is not None:  # the last rows are those of the relative check's detection
+            c.det_ref = c.rel_ref
+            c.rel_ref = None
+        else:
+            c.det_ref = c.x1  # the rows come from the detection of CollisionDetect.step
         for _ in range(self.params.final_rounds):
             _detect_all(c, x, p, ctx.state.particle_qd, ctx.dt, SPACETIME)
             if c.p_det is None:

@@ -129,15 +129,22 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "know
 
         E = triangle_edges(cloth.geometry.triangles) + cloth.vertex_offset
         L0 = np.linalg.norm(np.diff(sim.state.particle_q[E], axis=1)[:, 0], axis=1)
-        runs[on] = {"sim": sim, "F": F, "E": E, "L0": L0, "cpu": [], "pairs": 0, "strain": 0.0}
+        runs[on] = {"sim": sim, "F": F, "E": E, "L0": L0, "cpu": [], "pairs": 0, "strain": 0.0,
+                    "rows": [], "checks": 0, "redetect": 0, "flagged": 0,
+                    "nv": int(cloth.vertex_count), "substeps": int(sim.model.substeps)}
     try:
         for f in range(frames):
             for on in ((False, True) if f % 2 == 0 else (True, False)):
                 r = runs[on]
                 setting(on)
                 c0 = time.process_time()
-                r["sim"].step_frame()
+                st = r["sim"].step_frame()
                 r["cpu"].append(time.process_time() - c0)
+                r["rows"].append(st.get("contacts_vf", 0) + st.get("contacts_ee", 0))
+                if f >= from_frame - 1:
+                    r["checks"] += st.get("relative_checks", 0)
+                    r["redetect"] += st.get("relative_detections", 0)
+                    r["flagged"] += st.get("relative_flagged", 0)
                 q = r["sim"].state.particle_q
                 r["pairs"] = max(r["pairs"], int(find_intersections(q, r["F"],
                                                                     touching=False).count))
@@ -156,7 +163,13 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "know
             "pairs_off": runs[False]["pairs"], "pairs_on": runs[True]["pairs"],
             "same_positions": bool(np.array_equal(runs[False]["sim"].state.particle_q,
                                                   runs[True]["sim"].state.particle_q)),
-            "strain_off": runs[False]["strain"], "strain_on": runs[True]["strain"]}
+            "strain_off": runs[False]["strain"], "strain_on": runs[True]["strain"],
+            # rows of the substeps' first detections per cloth vertex (median over the frames)
+            **{f"rows_per_vertex_{b}": float(np.median(runs[v]["rows"][k:]))
+               / runs[v]["substeps"] / runs[v]["nv"] for b, v in (("off", False), ("on", True))},
+            # SPACETIME_RELATIVE: checks, re-detections, flagged vertices (timed frames)
+            **{f"{key}_{b}": runs[v][key] for key in ("checks", "redetect", "flagged")
+               for b, v in (("off", False), ("on", True))}}
 
 
 def main_ab(args):
@@ -178,6 +191,13 @@ def main_ab(args):
         print(f"| {r['resolution']} | {r['cpu_ms_off']:.0f} | {r['cpu_ms_on']:.0f} | "
               f"{r['ratio']:.3f} | {r['pairs_off']} / {r['pairs_on']} | "
               f"{100 * r['strain_off']:.1f} / {100 * r['strain_on']:.1f} |")
+    print("| res | rows / vertex off / on | relative checks / re-detections / flagged "
+          "vertices (on) |")
+    print("|---|---|---|")
+    for r in rows:
+        print(f"| {r['resolution']} | {r['rows_per_vertex_off']:.1f} / "
+              f"{r['rows_per_vertex_on']:.1f} | {r['checks_on']} / {r['redetect_on']} / "
+              f"{r['flagged_on']} |")
     for r in rows:
         print(f"{r['resolution']}: last positions bitwise equal: {r['same_positions']}")
     out = Path(args.out)
