@@ -46,6 +46,13 @@ def _missing(x, rows_vf, rows_ee, tris, edges, target):
     return miss
 
 
+def _rows(c):
+    """The packed rows and ``RELATIVE_INCREMENTAL``'s added ones (vf, ee)."""
+    vf = np.concatenate([c.vf] + [e[0][0] for e in c.rel_extra])
+    ee = np.concatenate([c.ee] + [e[1][0] for e in c.rel_extra])
+    return vf, ee
+
+
 def _mesh(sim):
     tris = np.concatenate([e.geometry.triangles + e.vertex_offset for e in sim.model.elements
                            if e.geometry is not None])
@@ -165,21 +172,30 @@ def test_relative_check_flags_stopped_walls(scene_file, monkeypatch):
         t_max = d.rel_bounds[0][1]
         miss = len(_missing(p, d.vf, d.ee, tris, edges, t_max))
         flagged = C._relative_check(d, x, p)
+        added = C._relative_extra(d, x, p, ctx.state.particle_qd, ctx.dt)
+        incremental = len(_missing(p, *_rows(d), tris, edges, t_max))
         C._detect_all(d, x, p, ctx.state.particle_qd, ctx.dt, "relative", C.RELATIVE_SLACK)
-        return miss, flagged, len(_missing(p, d.vf, d.ee, tris, edges, t_max))
+        return miss, flagged, added, incremental, len(_missing(p, d.vf, d.ee, tris, edges,
+                                                             t_max))
 
-    miss, flagged, after = _capture_first_detection(monkeypatch, sim, at_detection)
+    miss, flagged, added, incremental, after = _capture_first_detection(monkeypatch, sim,
+                                                                        at_detection)
     assert miss > 10  # as test_collision_spacetime's space-time rows (1,114 measured there)
     assert flagged > 0
-    assert after == 0
+    assert added >= miss and incremental == 0  # the rows added for the flagged vertices
+    assert after == 0  # or a full detection over x -> p
 
 
-def test_relative_check_holds_in_a_simulation(scene_file, monkeypatch):
+@pytest.mark.parametrize("incremental", [1.0, 0.0])
+def test_relative_check_holds_in_a_simulation(scene_file, monkeypatch, incremental):
     """A tube thrown down onto a kinematic floor (it flattens: its upper wall comes down onto
     the lower one), simulated with ``SPACETIME_RELATIVE``: at every check that passes,
     brute force finds no pair within its target missing from the rows; the check fails and
-    re-detects in some passes, and the frames end without intersections."""
+    re-detects in some passes (rows added for the flagged vertices, or everything detected
+    again), every pass then holds every pair within its target, and the frames end without
+    intersections."""
     monkeypatch.setattr(C, "SPACETIME_RELATIVE", True)
+    monkeypatch.setattr(C, "RELATIVE_INCREMENTAL", incremental)  # added rows / detect again
     path = scene_file("""
     lokigraph: 1
     frames: {start: 1, end: 4, fps: 24}
@@ -206,8 +222,8 @@ def test_relative_check_holds_in_a_simulation(scene_file, monkeypatch):
     sim = Simulation(compile_file(path))
     sim.state.particle_qd[:] = [0.0, -2.0, 0.0]
     tris, edges = _mesh(sim)
-    orig = C._relative_check
-    seen = {"pass": 0, "fail": 0, "missing": 0}
+    orig, orig_extra = C._relative_check, C._relative_extra
+    seen = {"pass": 0, "fail": 0, "missing": 0, "missing_added": 0, "added": 0}
 
     def check(c, x, p):
         k = orig(c, x, p)
@@ -219,10 +235,18 @@ def test_relative_check_holds_in_a_simulation(scene_file, monkeypatch):
                                             c.rel_bounds[0][1]))
         return k
 
+    def extra(c, x, p, v, h):
+        n = orig_extra(c, x, p, v, h)
+        seen["added"] += n
+        seen["missing_added"] += len(_missing(p, *_rows(c), tris, edges, c.rel_bounds[0][1]))
+        return n
+
     monkeypatch.setattr(C, "_relative_check", check)
+    monkeypatch.setattr(C, "_relative_extra", extra)
     for _ in range(3):
         st = sim.step_frame()
         assert st.get("penetrations", 0) == 0
     print(seen)
-    assert seen["missing"] == 0
+    assert seen["missing"] == 0 and seen["missing_added"] == 0
     assert seen["pass"] > 0 and seen["fail"] > 0
+    assert (seen["added"] > 0) == (incremental > 0)

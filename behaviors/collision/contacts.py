@@ -171,6 +171,13 @@ SPACETIME_RELATIVE = False
 #: [m] extra inflation of the boxes of ``SPACETIME_RELATIVE``'s detections: the relative
 #: deviation the check tolerates grows by twice this
 RELATIVE_SLACK = 0.0015
+#: where ``SPACETIME_RELATIVE``'s check flags vertices, add rows for the flagged vertices'
+#: primitives only (``_relative_extra``: their boxes at the iterate against every primitive's,
+#: pairs the detection's own boxes already held left out), projected after the detected rows
+#: in that pass and replaced at the next check) while they are at most this fraction of the
+#: groups' vertices; more (or 0): detect everything again over x -> p, which the check then
+#: measures from
+RELATIVE_INCREMENTAL = 0.05
 #: the swept-box detections (over the predicted motion) and the space-time ones (final rounds,
 #: CCD) query into their own pair buffers: a buffer sizes the single traversal pass's scratch
 #: from its previous query, and alternating 222k swept and 78k space-time edge pairs (64 x 64
@@ -328,6 +335,10 @@ class _Contacts:
     p_rel: np.ndarray = None
     rel_bounds: list = field(default_factory=list)
     rel_work: dict = field(default_factory=dict)
+    # rows added by the last check (``RELATIVE_INCREMENTAL``): per group (vf, ee) tuples as
+    # ``_detect_group``'s, projected after the packed rows; vertex normals at x (one-sided)
+    rel_extra: list = field(default_factory=list)
+    rel_vn: dict = field(default_factory=dict)
     cull_passes: int = 0  # projection passes over the culled rows / over every row (counts)
     full_passes: int = 0
 
@@ -1668,6 +1679,8 @@ def _relative_setup(c, v, h, slack):
     most twice the largest thickness plus the restitution's 2 restitution |v|_max h."""
     c.rel_slack = slack
     c.rel_bounds = []
+    c.rel_extra = []
+    c.rel_vn = {}
     for g in c.groups:
         if not len(g.verts):
             c.rel_bounds.append((0.0, 0.0))
@@ -1682,11 +1695,12 @@ def _relative_setup(c, v, h, slack):
 
 
 @njit(cache=True)
-def _relative_flags(x, p, ref, verts, kin, edges, bound, t_max, mn, mx, kex, flags):
+def _relative_flags(x, p, ref, verts, kin, edges, bound, t_max, mn, mx, kex, flags, which=3):
     """Dynamic vertices of ``verts`` (flags[k] = True for verts[k]) at risk at the iterate
     ``p`` for rows detected over x -> ref (``SPACETIME_RELATIVE``); returns their count.
     ``kin``: per entry of ``verts``, kinematic; ``mn``, ``mx`` (M, 3), ``kex`` (M,): scratch,
-    M a power of two. A dynamic vertex is at risk when its deviation d = p - ref differs on
+    M a power of two; ``which`` (bits, for diagnostics): 1 the test against dynamic
+    vertices, 2 the one against kinematic vertices (3: both). A dynamic vertex is at risk when its deviation d = p - ref differs on
     some axis by more than ``bound`` from that of a dynamic vertex in a neighbouring cell of
     a grid over ``p``, or when it lies outside the box of its motion x -> ref by more than
     ``bound`` less the largest such excess of a kinematic vertex in a neighbouring cell.
@@ -1758,9 +1772,10 @@ def _relative_flags(x, p, ref, verts, kin, edges, bound, t_max, mn, mx, kex, fla
                     hi2 = max(hi2, mx[hsh, 2])
                     ke = max(ke, kex[hsh])
         d0, d1, d2 = p[v, 0] - ref[v, 0], p[v, 1] - ref[v, 1], p[v, 2] - ref[v, 2]
-        f = not (d0 - lo0 <= bound and hi0 - d0 <= bound and d1 - lo1 <= bound
-                 and hi1 - d1 <= bound and d2 - lo2 <= bound and hi2 - d2 <= bound)  # NaN: flag
-        if not f and ke >= 0.0:
+        f = (which & 1) != 0 and not (d0 - lo0 <= bound and hi0 - d0 <= bound
+                                      and d1 - lo1 <= bound and hi1 - d1 <= bound
+                                      and d2 - lo2 <= bound and hi2 - d2 <= bound)  # NaN: flag
+        if not f and (which & 2) != 0 and ke >= 0.0:
             f = not (_excess(x, ref, p, v) + ke <= bound)
         flags[q] = f
         if f:
@@ -1798,6 +1813,171 @@ def _relative_check(c, x, p) -> int:
         n += _relative_flags(x, p, c.rel_ref, g.verts, w[4], g.edges, bound, t_max, w[0], w[1],
                              w[2], w[3])
     return n
+
+
+def _infl(g, slack=0.0):
+    """Per-vertex box inflation [m] of group ``g``'s detections (as ``_detect_all``)."""
+    infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
+    if slack:
+        infl += slack
+    if g.recover.any():
+        recent = (g.crossed >= g.stamp - SIDE_MEMORY).any(axis=1)
+        infl[recent] *= 4.0
+    return infl
+
+
+@njit(cache=True, inline="always")
+def _prim_st(x, ref, prim, r, out):
+    """Start box (lo, hi, inflated by the largest ``r`` of its vertices), displacement box and
+    swept box (inflated) of one primitive (a row of vertex indices): out[0:3] lo0, [3:6] hi0,
+    [6:9] dlo, [9:12] dhi, [12:15] swept lo, [15:18] swept hi."""
+    rr = 0.0
+    for c in range(prim.shape[0]):
+        rr = max(rr, r[prim[c]])
+    for k in range(3):
+        out[k] = np.inf
+        out[3 + k] = -np.inf
+        out[6 + k] = np.inf
+        out[9 + k] = -np.inf
+        out[12 + k] = np.inf
+        out[15 + k] = -np.inf
+    for c in range(prim.shape[0]):
+        v = prim[c]
+        for k in range(3):
+            d = ref[v, k] - x[v, k]
+            out[k] = min(out[k], x[v, k])
+            out[3 + k] = max(out[3 + k], x[v, k])
+            out[6 + k] = min(out[6 + k], d)
+            out[9 + k] = max(out[9 + k], d)
+            out[12 + k] = min(out[12 + k], min(x[v, k], ref[v, k]))
+            out[15 + k] = max(out[15 + k], max(x[v, k], ref[v, k]))
+    for k in range(3):
+        out[k] -= rr
+        out[3 + k] += rr
+        out[12 + k] -= rr
+        out[15 + k] += rr
+
+
+@njit(cache=True)
+def _held(x, ref, r, prims_a, prims_b, lab_a, lab_b, cand, keep):
+    """keep[i] = False for the candidates (rows of ``cand``: a primitive of ``prims_a``, one
+    of ``prims_b``) that the detection over x -> ref with inflation ``r`` surely found: their
+    swept boxes overlap and, for one label (both dynamic), their space-time boxes do (as
+    ``broadphase._ovl``), each by a margin of 1e-7 m (a pair on the edge is kept: at worst
+    projected twice). Returns the count kept."""
+    a = np.empty(18)
+    b = np.empty(18)
+    tol = 1e-7
+    n = 0
+    for i in range(cand.shape[0]):
+        pa, pb = cand[i, 0], cand[i, 1]
+        _prim_st(x, ref, prims_a[pa], r, a)
+        _prim_st(x, ref, prims_b[pb], r, b)
+        held = True
+        for k in range(3):
+            if a[12 + k] > b[15 + k] - tol or b[12 + k] > a[15 + k] - tol:
+                held = False
+        if held and lab_a[pa] == lab_b[pb]:
+            for k in range(3):
+                if a[k] - b[3 + k] + min(0.0, a[6 + k] - b[9 + k]) > -tol:
+                    held = False
+                if a[3 + k] - b[k] + max(0.0, a[9 + k] - b[6 + k]) < tol:
+                    held = False
+        keep[i] = not held
+        if not held:
+            n += 1
+    return n
+
+
+def _relative_extra(c, x, p, v, h) -> int:
+    """``RELATIVE_INCREMENTAL``: rows for the primitives of the vertices the last
+    ``_relative_check`` flagged, into ``c.rel_extra``; returns their count. Candidates: the
+    boxes at ``p`` (inflated as the detection's) of every primitive with a flagged vertex
+    against every primitive's, less the pairs the detection over x -> ``c.rel_ref`` surely
+    held (``_held``), filtered as a detection's. Every pair within its target at ``p`` is
+    then among the packed or these rows: a pair missing from the packed rows and within its
+    target has a flagged vertex in one of its primitives (``_relative_flags``), and is within
+    twice the inflation at ``p``."""
+    c.rel_extra = []
+    added = 0
+    for g in c.groups:
+        w = c.rel_work.get(g.name)
+        if w is None or not w[3].any():
+            continue
+        n = len(x)
+        fl = np.zeros(n, np.bool_)
+        fl[g.verts[w[3]]] = True
+        infl = _infl(g, c.rel_slack)
+        kin_el = g.kinematic_el
+        vf = ee = None
+        buf = g.bufs.get("rel_buf")
+        if buf is None:
+            buf = g.bufs["rel_buf"] = bp.PairBuffer(1024)
+        if g.do_vf and len(g.tris):
+            lo_v, hi_v = bp.primitive_boxes(p, g.verts, None, infl)
+            lo_t, hi_t = bp.primitive_boxes(p, g.tris, None, infl)
+            iv = np.flatnonzero(fl[g.verts])
+            it = np.flatnonzero(fl[g.tris].any(axis=1))
+            c1 = bp.column_query_pairs(lo_v[iv], hi_v[iv], lo_t, hi_t, g.verts[iv, None],
+                                       g.tris, out=buf).copy()
+            c1[:, 0] = iv[c1[:, 0]]
+            c2 = bp.column_query_pairs(lo_v, hi_v, lo_t[it], hi_t[it], g.verts[:, None],
+                                       g.tris[it], out=buf).copy()
+            c2[:, 1] = it[c2[:, 1]]
+            cand = np.unique(np.concatenate([c1, c2]), axis=0)
+            ev = g.vert_elem[g.verts]
+            lab_v = np.where(kin_el[ev], ev + 1, 0)
+            lab_t = np.where(kin_el[g.tri_elem], g.tri_elem + 1, 0)
+            keep = np.empty(len(cand), np.bool_)
+            if len(cand):
+                _held(x, c.rel_ref, infl, g.verts[:, None], g.tris, lab_v, lab_t, cand, keep)
+            cand = np.ascontiguousarray(cand[keep])
+            if len(cand):
+                m = len(cand)
+                rows, nrm, tgt, mu, one = (np.empty((m, 4), np.int64), np.empty((m, 3)),
+                                           np.empty(m), np.empty(m), np.empty(m, np.bool_))
+                k, _ = _filter_vf(cand, g.verts, g.tris, g.tri_elem, g.vert_elem, g.allow,
+                                  g.tolerant, g.th_out, g.th_in, g.friction, g.visible,
+                                  g.setmask, g.one_sided, x, v, h, g.restitution, g.margin,
+                                  rows, nrm, tgt, mu, one, g.recover, g.side_mem, g.side_seen,
+                                  g.crossed, g.stamp, g.near_d, g.near_s)
+                vf = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, one[:k],
+                      np.full(k, g.strength))
+                added += k
+        if g.do_ee and len(g.edges):
+            lo_e, hi_e = bp.primitive_boxes(p, g.edges, None, infl)
+            ie = np.flatnonzero(fl[g.edges].any(axis=1))
+            cand = bp.column_query_pairs(lo_e[ie], hi_e[ie], lo_e, hi_e, g.edges[ie], g.edges,
+                                         out=buf).copy()
+            cand[:, 0] = ie[cand[:, 0]]
+            cand = np.unique(np.sort(cand, axis=1), axis=0)
+            cand = cand[cand[:, 0] != cand[:, 1]]
+            lab_e = np.where(kin_el[g.edge_elem], g.edge_elem + 1, 0)
+            keep = np.empty(len(cand), np.bool_)
+            if len(cand):
+                _held(x, c.rel_ref, infl, g.edges, g.edges, lab_e, lab_e, cand, keep)
+            cand = np.ascontiguousarray(cand[keep])
+            if len(cand):
+                vn = c.rel_vn.get(g.name)
+                if vn is None:
+                    vn = c.rel_vn[g.name] = (_vertex_normals(x, g) if g.one_sided.any()
+                                             else np.zeros((0, 3)))
+                m = len(cand)
+                rows, nrm, tgt, mu = (np.empty((m, 4), np.int64), np.empty((m, 3)),
+                                      np.empty(m), np.empty(m))
+                k, _ = _filter_ee(cand, g.edges, g.edge_elem, g.allow, g.tolerant, g.th_out,
+                                  g.friction, g.visible, g.setmask, g.one_sided, x, v, h,
+                                  g.restitution, g.margin, rows, nrm, tgt, mu, vn, g.crossed,
+                                  g.stamp)
+                ee = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale,
+                      np.full(k, g.strength))
+                added += k
+        empty_vf = (np.zeros((0, 4), np.int64),) + (np.zeros((0, 3)),) + (np.zeros(0),) * 2 \
+            + (np.zeros(0, np.bool_), np.zeros(0))
+        empty_ee = (np.zeros((0, 4), np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0),
+                    np.zeros(0))
+        c.rel_extra.append((vf or empty_vf, ee or empty_ee))
+    return added
 
 
 @njit(cache=True)
@@ -1925,14 +2105,20 @@ class CollisionConstraint(ConstraintBehavior):
         w = ctx.model.particle_inv_mass
         if c.rel_ref is not None:  # ``SPACETIME_RELATIVE``
             ctx.stats["relative_checks"] = ctx.stats.get("relative_checks", 0) + 1
-            k = _relative_check(c, ctx.state.particle_q, p)
-            if k:
-                _detect_all(c, ctx.state.particle_q, p, ctx.state.particle_qd, ctx.dt,
-                            "relative", c.rel_slack)
+            x = ctx.state.particle_q
+            k = _relative_check(c, x, p)
+            c.rel_extra = []
+            if k and k <= RELATIVE_INCREMENTAL * sum(len(g.verts) for g in c.groups):
+                n_add = _relative_extra(c, x, p, ctx.state.particle_qd, ctx.dt)
+                ctx.stats["relative_added"] = ctx.stats.get("relative_added", 0) + n_add
+            elif k:
+                ctx.stats["relative_full"] = ctx.stats.get("relative_full", 0) + 1
+                _detect_all(c, x, p, ctx.state.particle_qd, ctx.dt, "relative", c.rel_slack)
                 if c.p_rel is None or c.p_rel.shape != p.shape:
                     c.p_rel = np.empty_like(p)
                 c.p_rel[:] = p
                 c.rel_ref = c.det_ref = c.p_rel
+            if k:
                 ctx.stats["relative_detections"] = ctx.stats.get("relative_detections", 0) + 1
                 ctx.stats["relative_flagged"] = ctx.stats.get("relative_flagged", 0) + k
         elif self.params.redetect and c.det_ref is not None:
@@ -1944,6 +2130,13 @@ class CollisionConstraint(ConstraintBehavior):
                 c.det_ref = c.p_det
                 ctx.stats["iteration_detections"] = ctx.stats.get("iteration_detections", 0) + 1
         a = _project_contacts(c, p, ctx.state.particle_q, w)
+        for vf, ee in c.rel_extra:  # ``RELATIVE_INCREMENTAL``'s rows of this pass
+            if len(vf[0]):
+                a += project_vf(p, ctx.state.particle_q, w, vf[0], vf[1], vf[2], vf[3], vf[5],
+                                c.damping, vf[4])
+            if len(ee[0]):
+                a += project_ee(p, ctx.state.particle_q, w, ee[0], ee[1], ee[2], ee[3], ee[4],
+                                c.damping)
         ctx.stats["max_active_contacts"] = max(ctx.stats.get("max_active_contacts", 0), a)
 
     def finalize(self, ctx, d, p):
@@ -1956,9 +2149,10 @@ class CollisionConstraint(ConstraintBehavior):
         active = 0
         joint = [(b, dd) for b, dd in ctx.constraints if hasattr(b, "project_joint")]
         n_it = max([self.params.final_iterations] + [b.joint_iterations() for b, _ in joint])
-        if c.rel_ref is not None:  # the last rows are those of the relative check's detection
-            c.det_ref = c.rel_ref
+        if c.rel_ref is not None:  # rows of ``SPACETIME_RELATIVE``: the CCD detects again
+            c.det_ref = None
             c.rel_ref = None
+            c.rel_extra = []
         else:
             c.det_ref = c.x1  # the rows come from the detection of CollisionDetect.step
         for _ in range(self.params.final_rounds):

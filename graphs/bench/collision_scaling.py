@@ -31,7 +31,10 @@ strain of each. Run with ``NUMBA_NUM_THREADS=1`` for CPU-time comparisons::
 ``--ab --ab-flag NAME``: both at ``--ab-mode`` and the boolean ``contacts.NAME`` False ("off")
 against True ("on"), e.g. ``SPLIT_BUFFERS`` (``broadphase.NAME``: a boolean of the broad
 phase, e.g. ``broadphase.SEQUENTIAL_ONE_THREAD``; several, comma-separated, switch
-together). Whether the last positions of the two are bitwise equal is printed per size.
+together). Whether the last positions of the two are bitwise equal is printed per size, with
+the rows of the substeps' first detections per cloth vertex (median over the timed frames) and,
+for ``--ab-flag SPACETIME_RELATIVE``, its checks, re-detections and flagged vertices (sums over
+the timed frames).
 """
 
 from __future__ import annotations
@@ -130,7 +133,7 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "know
         E = triangle_edges(cloth.geometry.triangles) + cloth.vertex_offset
         L0 = np.linalg.norm(np.diff(sim.state.particle_q[E], axis=1)[:, 0], axis=1)
         runs[on] = {"sim": sim, "F": F, "E": E, "L0": L0, "cpu": [], "pairs": 0, "strain": 0.0,
-                    "rows": [], "checks": 0, "redetect": 0, "flagged": 0,
+                    "rows": [], "checks": 0, "redetect": 0, "flagged": 0, "full": 0,
                     "nv": int(cloth.vertex_count), "substeps": int(sim.model.substeps)}
     try:
         for f in range(frames):
@@ -145,6 +148,7 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "know
                     r["checks"] += st.get("relative_checks", 0)
                     r["redetect"] += st.get("relative_detections", 0)
                     r["flagged"] += st.get("relative_flagged", 0)
+                    r["full"] += st.get("relative_full", 0)
                 q = r["sim"].state.particle_q
                 r["pairs"] = max(r["pairs"], int(find_intersections(q, r["F"],
                                                                     touching=False).count))
@@ -168,7 +172,7 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "know
             **{f"rows_per_vertex_{b}": float(np.median(runs[v]["rows"][k:]))
                / runs[v]["substeps"] / runs[v]["nv"] for b, v in (("off", False), ("on", True))},
             # SPACETIME_RELATIVE: checks, re-detections, flagged vertices (timed frames)
-            **{f"{key}_{b}": runs[v][key] for key in ("checks", "redetect", "flagged")
+            **{f"{key}_{b}": runs[v][key] for key in ("checks", "redetect", "flagged", "full")
                for b, v in (("off", False), ("on", True))}}
 
 
@@ -191,12 +195,13 @@ def main_ab(args):
         print(f"| {r['resolution']} | {r['cpu_ms_off']:.0f} | {r['cpu_ms_on']:.0f} | "
               f"{r['ratio']:.3f} | {r['pairs_off']} / {r['pairs_on']} | "
               f"{100 * r['strain_off']:.1f} / {100 * r['strain_on']:.1f} |")
-    print("| res | rows / vertex off / on | relative checks / re-detections / flagged "
-          "vertices (on) |")
+    print("| res | rows / vertex off / on | relative checks / re-detections (of them full) / "
+          "flagged vertices (on) |")
     print("|---|---|---|")
     for r in rows:
         print(f"| {r['resolution']} | {r['rows_per_vertex_off']:.1f} / "
-              f"{r['rows_per_vertex_on']:.1f} | {r['checks_on']} / {r['redetect_on']} / "
+              f"{r['rows_per_vertex_on']:.1f} | {r['checks_on']} / {r['redetect_on']} "
+              f"({r['full_on']}) / "
               f"{r['flagged_on']} |")
     for r in rows:
         print(f"{r['resolution']}: last positions bitwise equal: {r['same_positions']}")
