@@ -149,7 +149,8 @@ class ClothSphere:
 # solver statistics kept per frame (sums over the frame's substeps; max_* the max)
 STAT_KEYS = ("contacts_vf", "contacts_ee", "contacts_tolerant", "iteration_detections",
              "max_active_contacts", "max_final_active", "ccd_detections", "ccd_hits",
-             "ccd_zones", "ccd_zone_vertices", "ccd_unresolved")
+             "ccd_zones", "ccd_zone_vertices", "ccd_unresolved", "relative_checks",
+             "relative_detections", "relative_full", "relative_flagged", "relative_added")
 _PROF: dict = {}  # --breakdown: CPU seconds and calls per timed function, reset every frame
 
 
@@ -581,6 +582,8 @@ def per_frame_table(rows) -> str:
                  "ball v (spin) m/s", "cloth v mean / p95", "last rows self / ball"]
         if any("t_detect" in v for v in r["per_frame"]):
             cols += ["detect ms (calls)", "project ms", "ccd ms", "ccd hits / zone verts"]
+        if any("relative_checks" in v for v in r["per_frame"]):
+            cols += ["relative checks / re-detections (full) / flagged"]
     lines.append("| " + " | ".join(cols) + " |")
     lines.append("|" + "---|" * len(cols))
     n = max(len(r["per_frame"]) for r in rows)
@@ -605,6 +608,11 @@ def per_frame_table(rows) -> str:
                           f"{1e3 * v.get('t_project', 0):.0f}",
                           f"{1e3 * v.get('t_ccd', 0):.0f}",
                           f"{v.get('ccd_hits', 0):.0f} / {v.get('ccd_zone_vertices', 0):.0f}"]
+            if any("relative_checks" in u for u in pf):
+                cells += [f"{v.get('relative_checks', 0):.0f} / "
+                          f"{v.get('relative_detections', 0):.0f} "
+                          f"({v.get('relative_full', 0):.0f}) / "
+                          f"{v.get('relative_flagged', 0):.0f}"]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
