@@ -182,7 +182,17 @@ SPACETIME_PREDICTED = False
 #: only) and 3.13x (128); with the incremental rows up to 5 % flagged 2.17x (64) and 3.03x
 #: (128; 94 re-detections in 112 passes, 72 of them full), 5.12x at 64 with the incremental
 #: rows only (the reference stays x1, so the flags grow through the substep). No
-#: intersecting pair either way; largest strain 6.6 -> 6.7 % (64), 15.9 -> 15.8 % (128)
+#: intersecting pair either way; largest strain 6.6 -> 6.7 % (64), 15.9 -> 15.8 % (128).
+#: Without slack (``RELATIVE_SLACK`` 0, 64 x 64): 27.4 rows per vertex against 35.0, flags in
+#: 132 of 144 passes (105 full re-detections), 2.00x. The moving scene (``NUMBA_NUM_THREADS=1
+#: peer_collision.py --moving --loki 2x15 --moving-flag SPACETIME_RELATIVE --frames 12``, one
+#: interleaved run): CPU per frame against the static scene 5.91x median (3.55x mean) with it,
+#: 2.11x (2.02x) without; its rows of a frame's first detections 3.0-6.7M against 2.1-20.5M
+#: (frames 6-12; but 2.9M against 0.23M in the free fall of frames 1-5: at 128 x 128 the edge,
+#: 7.8 mm, is shorter than the 9 mm the slack-widened boxes reach, and the swept boxes' 6 mm
+#: is not), flags in 14-16 of the 16 passes of frames 7-12 (7-15 full re-detections a frame),
+#: no intersecting pair and no vertex inside in any frame either way, largest strain 82.3 ->
+#: 67.9 %
 SPACETIME_RELATIVE = False
 #: [m] extra inflation of the boxes of ``SPACETIME_RELATIVE``'s detections: the relative
 #: deviation the check tolerates grows by twice this
