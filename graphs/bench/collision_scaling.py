@@ -34,7 +34,8 @@ phase, e.g. ``broadphase.SEQUENTIAL_ONE_THREAD``; several, comma-separated, swit
 together). Whether the last positions of the two are bitwise equal is printed per size, with
 the rows of the substeps' first detections per cloth vertex (median over the timed frames) and,
 for ``--ab-flag SPACETIME_RELATIVE``, its checks, re-detections and flagged vertices (sums over
-the timed frames).
+the timed frames). ``--ab-set NAME=VALUE ...``: numeric settings of ``contacts`` for both runs
+(e.g. ``RELATIVE_SLACK=0``, ``RELATIVE_INCREMENTAL=0``: full re-detections only).
 """
 
 from __future__ import annotations
@@ -177,6 +178,13 @@ def run_ab(n: int, frames: int, from_frame: int, folder: Path, mode: str = "know
 
 
 def main_ab(args):
+    from lokigraph.behaviors.collision import contacts as C
+
+    for kv in args.ab_set:  # numeric settings of contacts for both runs
+        k, v = kv.split("=", 1)
+        if not isinstance(getattr(C, k), (int, float)) or isinstance(getattr(C, k), bool):
+            raise SystemExit(f"--ab-set: contacts.{k} is not a number")
+        setattr(C, k, float(v))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for n in args.sizes:
@@ -224,6 +232,9 @@ def main(argv=None):
                     help="--ab: the setting timed as 'on'")
     ap.add_argument("--ab-ref", choices=sorted(AB_SETTINGS), default="off",
                     help="--ab: the setting timed as 'off'")
+    ap.add_argument("--ab-set", nargs="+", default=[], metavar="NAME=VALUE",
+                    help="--ab: numeric settings of contacts for both runs (e.g. "
+                    "RELATIVE_SLACK=0 RELATIVE_INCREMENTAL=0)")
     ap.add_argument("--ab-flag", default="", help="--ab: a boolean of contacts (e.g. "
                     "SPLIT_BUFFERS; broadphase.NAME: of the broad phase; several comma-separated) "
                     "timed False (off) / True (on), both at --ab-mode")
