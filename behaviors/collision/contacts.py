@@ -179,11 +179,12 @@ SPACETIME_PREDICTED = False
 #: missing from the rows in 2-5 of the 14-16 flagged passes of each of frames 9-11 at 64 x
 #: 64, so the flags are not idle), and the first detection's rows per cloth vertex are 47 /
 #: 118 against the swept boxes' 35 / 133: median per-frame CPU 2.50x (64, full re-detection
-#: only) and 3.13x (128); with the incremental rows up to 5 % flagged 2.17x (64) and 3.03x
-#: (128; 94 re-detections in 112 passes, 72 of them full), 5.12x at 64 with the incremental
-#: rows only (the reference stays x1, so the flags grow through the substep). No
+#: only: ``--ab-set RELATIVE_INCREMENTAL=0``) and 3.13x (128); with the incremental rows up
+#: to 5 % flagged 2.17x (64) and 3.03x (128; 94 re-detections in 112 passes, 72 of them
+#: full), 5.12x at 64 with the incremental rows only (``RELATIVE_INCREMENTAL=1``: the
+#: reference stays x1, so the flags grow through the substep). No
 #: intersecting pair either way; largest strain 6.6 -> 6.7 % (64), 15.9 -> 15.8 % (128).
-#: Without slack (``RELATIVE_SLACK`` 0, 64 x 64): 27.4 rows per vertex against 35.0, flags in
+#: Without slack (``--ab-set RELATIVE_SLACK=0``, 64 x 64): 27.4 rows per vertex against 35.0, flags in
 #: 132 of 144 passes (105 full re-detections), 2.00x. The moving scene (``NUMBA_NUM_THREADS=1
 #: peer_collision.py --moving --loki 2x15 --moving-flag SPACETIME_RELATIVE --frames 12``, one
 #: interleaved run): CPU per frame against the static scene 5.91x median (3.55x mean) with it,
