@@ -866,7 +866,56 @@ def _project_contacts(c, p, x, w) -> int:
     return a
 
 
+#: ``_pack`` writes the groups' rows into grow-only buffers of the contacts object (two sets
+#: used in turn, so the rows of the previous detection stay valid until the next-but-one: a
+#: caller may keep views of ``c.vf``, ``c.vf_n``, ... across one re-detection) instead of new
+#: arrays from ``np.concatenate`` at every detection. The same values (copies either way), so
+#: the positions are bitwise those of False (new arrays, for benchmarks).
+PACK_BUFFERS = True
+
+_PACK_VF = (((4,), np.int64), ((3,), np.float64), ((), np.float64), ((), np.float64),
+            ((), np.bool_), ((), np.float64))  # rows, normals, targets, mu, one-sided, strength
+_PACK_EE = (((4,), np.int64), ((3,), np.float64), ((), np.float64), ((), np.float64),
+            ((), np.float64))  # rows, normals, targets, mu, strength
+
+
+def _pack_set(d, kind, n, layout):
+    """Views of the first ``n`` rows of the next buffer set of ``kind`` ("vf" / "ee") of the
+    contacts ``d`` (the two sets alternate; grown by half when too small)."""
+    bufs = d.__dict__.setdefault("_pack_bufs", {})
+    turn = bufs.get(kind + "_turn", 1) ^ 1
+    bufs[kind + "_turn"] = turn
+    key = (kind, turn)
+    b = bufs.get(key)
+    if b is None or len(b[0]) < n:
+        m = max(n, int(1.5 * len(b[0])) if b is not None else n)
+        b = bufs[key] = tuple(np.empty((m,) + shape, dt) for shape, dt in layout)
+    return tuple(a[:n] for a in b)
+
+
 def _pack(d, vf_all, ee_all):
+    """The rows of every group, packed into ``d.vf``, ``d.vf_n``, ... (``PACK_BUFFERS``)."""
+    if not PACK_BUFFERS:
+        _pack_new(d, vf_all, ee_all)
+        return
+    for kind, parts, layout in (("vf", vf_all, _PACK_VF), ("ee", ee_all, _PACK_EE)):
+        n = sum(len(a[0]) for a in parts)
+        out = _pack_set(d, kind, n, layout)
+        i = 0
+        for a in parts:  # loop over groups
+            k = len(a[0])
+            if k:
+                for j in range(len(out) - 1):
+                    out[j][i:i + k] = a[j]
+                out[-1][i:i + k] = a[-1]  # the group's strength
+            i += k
+        if kind == "vf":
+            d.vf, d.vf_n, d.vf_target, d.vf_mu, d.vf_onesided, d.strength = out
+        else:
+            d.ee, d.ee_n, d.ee_target, d.ee_mu, d.ee_strength = out
+
+
+def _pack_new(d, vf_all, ee_all):
     d.vf = np.concatenate([a[0] for a in vf_all]) if vf_all else np.zeros((0, 4), np.int64)
     d.vf_n = np.concatenate([a[1] for a in vf_all]) if vf_all else np.zeros((0, 3))
     d.vf_target = np.concatenate([a[2] for a in vf_all]) if vf_all else np.zeros(0)
