@@ -337,3 +337,52 @@ def test_zsort_pairs_is_the_z_order_of_the_ranks():
         q2 = buf.reserve(len(p))
         q2[:] = p
         assert np.array_equal(bp.zsort_pairs(q2, ra, r2, self_mode, buf), ref)
+
+
+@pytest.mark.parametrize("kind", ["cloth", "soup"])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_gathered_sweep_and_dealt_slots_give_the_same_rows(monkeypatch, kind, threads):
+    """``COLUMN_GATHERED`` (int8 flags, the entries' vertices gathered for the shared-vertex
+    test) and ``COLUMN_DEAL`` (slots taken one at a time): the rows and their order of the
+    sweep without them, self and two-set queries, with and without space-time boxes and
+    primitives, on one and two threads."""
+    if threads > numba.config.NUMBA_NUM_THREADS:
+        pytest.skip("numba has one thread")
+    X0, X1, _, F = make_mesh(kind, 4)
+    E = bp.mesh_edges(F)
+    V = np.arange(len(X0))
+    rng = np.random.default_rng(4)
+    thick = 0.02 * rng.random(len(X0))
+    lo_e, hi_e = bp.primitive_boxes(X0, E, X1, thick)
+    lo_v, hi_v = bp.primitive_boxes(X0, V, X1, thick)
+    lo_f, hi_f = bp.primitive_boxes(X0, F, X1, thick)
+    lo_f[2] -= 1.0  # a big box
+    g = rng.integers(0, 3, len(E))
+    se = bp.spacetime_prim_boxes(X0, E, X1, thick, rng.random(len(E)) > 0.5, g)
+    sv = bp.spacetime_prim_boxes(X0, V, X1, thick, None, np.zeros(len(V), np.int64))
+    sf = bp.spacetime_prim_boxes(X0, F, X1, thick, None, np.zeros(len(F), np.int64))
+
+    def queries():
+        return [bp.column_query_self(lo_e, hi_e, E).copy(),
+                bp.column_query_self(lo_e, hi_e).copy(),
+                bp.column_query_self(lo_e, hi_e, E, st=se, out=bp.PairBuffer()).copy(),
+                bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F).copy(),
+                bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f).copy(),
+                bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F, out=bp.PairBuffer(),
+                                      st_a=sv, st_b=sf).copy()]
+
+    old = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        monkeypatch.setattr(bp, "COLUMN_GATHERED", False)
+        monkeypatch.setattr(bp, "COLUMN_DEAL", False)
+        ref = queries()
+        monkeypatch.setattr(bp, "COLUMN_GATHERED", True)
+        monkeypatch.setattr(bp, "COLUMN_DEAL", True)
+        got = queries()
+    finally:
+        numba.set_num_threads(old)
+    for a, b in zip(got, ref):
+        assert len(b) > 0 and np.array_equal(a, b)
+    assert len(ref[1]) > len(ref[0]) > len(ref[2])  # primitives and space-time boxes skip rows
+    assert as_set(ref[0]) == brute_self(lo_e, hi_e, E)

@@ -156,10 +156,11 @@ Limitations
 
 from __future__ import annotations
 
+import contextlib
 from typing import NamedTuple
 
 import numpy as np
-from numba import get_num_threads, njit, prange
+from numba import get_num_threads, njit, parallel_chunksize, prange
 
 __all__ = [
     "BVH",
@@ -1674,14 +1675,32 @@ def hash_grid_query_boxes(grid: HashGrid, P, lo, hi, out: PairBuffer | None = No
 # --------------------------------------------------------------------------------------------
 
 #: column side of :func:`column_query_self` / :func:`column_query_pairs` over the mean box
-#: extent across the two column axes (see ``_col_setup``)
-COLUMN_CELL = 1.0
+#: extent across the two column axes (see ``_col_setup``). 2 instead of 1: fewer entries (a
+#: box in 1.9 columns instead of 3.3 on the benchmark's 50k rolled sheet), so fewer repeated
+#: tests of a pair in the columns both boxes cross, for more tests of pairs apart on a column
+#: axis; the same rows in another order (column by column of another grid; the contacts sort
+#: them, ``contacts.GRID_ORDER``). Measured on the 50k rolled sheet's VF + EE queries (1
+#: thread, interleaved, CPU): median ratio 0.935 against 1 (34.5 -> 32.3 ms); on the queries
+#: recorded from a contact frame (10) of the 64 x 64 drop: 0.986
+COLUMN_CELL = 2.0
 #: boxes spanning more than this many columns on a column axis are tested against every box
 #: (``_col_big_kernel``) instead of being entered into every column they cross
 _COL_BIG_SPAN = 4
 _COL_NO_ST = np.zeros((0, 14))
 #: box counts from which the column count and fill run in chunks on all threads
 _COL_PAR_MIN = 16384
+#: the column sweep's slots (runs of columns with about equal entry counts),
+#: ``COLUMN_SLOTS_PER_THREAD`` a thread, taken by the threads one at a time as they finish
+#: (``numba.parallel_chunksize(1)``) instead of one contiguous block of slots a thread: the
+#: sweep's cost per entry varies over the grid (16 slots of the 50k rolled sheet's edge-edge
+#: query, 1 thread: 0.8-4.8 ms). The same rows in the same order
+COLUMN_DEAL = True
+#: the column sweep reads int8 flags and every entry's primitive vertices gathered beside its
+#: box row (``_col_gather_v``, ``_col_body_v``) for the shared-vertex test, instead of int64
+#: flags and the primitives' rows at the boxes' numbers (a scattered read per tested pair).
+#: The same rows in the same order
+COLUMN_GATHERED = True
+COLUMN_SLOTS_PER_THREAD = 8
 
 
 @njit(cache=True)
@@ -1976,6 +1995,146 @@ def _col_slots(B, flag, ent, start, mid, na, self_mode, prims_a, prims_b, skip_s
 
 
 @njit(parallel=True, cache=True)
+def _col_gather_v(ent, lo, hi, s, a0, a1, na, prims_a, prims_b, skip_shared, B, V):
+    """:func:`_col_gather` and, with ``skip_shared``, every entry's primitive vertices ``V[p]``
+    (``COLUMN_GATHERED``), the unused places ``-1 - box`` (equal to no vertex and to no other
+    box's)."""
+    w = V.shape[1]
+    for p in prange(ent.shape[0]):
+        i = ent[p]
+        B[p, 0] = lo[i, s]
+        B[p, 1] = hi[i, s]
+        B[p, 2] = lo[i, a0]
+        B[p, 3] = hi[i, a0]
+        B[p, 4] = lo[i, a1]
+        B[p, 5] = hi[i, a1]
+        if skip_shared:
+            for x in range(w):
+                V[p, x] = -1 - i
+            if i < na:
+                for x in range(prims_a.shape[1]):
+                    V[p, x] = prims_a[i, x]
+            else:
+                for x in range(prims_b.shape[1]):
+                    V[p, x] = prims_b[i - na, x]
+
+
+@njit(cache=True, inline="always")
+def _share_v(V, p, q):
+    if V.shape[1] == 3:  # branch-free, the usual width (narrower primitives padded to 3)
+        v0, v1, v2 = V[p, 0], V[p, 1], V[p, 2]
+        w0, w1, w2 = V[q, 0], V[q, 1], V[q, 2]
+        return ((v0 == w0) | (v0 == w1) | (v0 == w2) | (v1 == w0) | (v1 == w1) | (v1 == w2)
+                | (v2 == w0) | (v2 == w1) | (v2 == w2))
+    for x in range(V.shape[1]):
+        v = V[p, x]
+        for y in range(V.shape[1]):
+            if v == V[q, y]:
+                return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def _st_keep(st, ia, ib):
+    """The space-time tests of ``_col_keep`` (rows ``ia``, ``ib`` of ``st``, not empty)."""
+    if st[ia, 12] == 0.0 and st[ib, 12] == 0.0:
+        return False
+    return not (st[ia, 13] == st[ib, 13] and not _st_overlap(st, ia, st, ib))
+
+
+@njit(cache=True)
+def _col_body_v(B, flag, ent, V, s0, m, e1, na, self_mode, skip_shared, st, out, pos, lim):
+    """:func:`_col_body` on the gathered vertices ``V`` (``COLUMN_GATHERED``): the same pairs
+    in the same order; the shared-vertex test reads the entries' own rows instead of the
+    primitives' (scattered) ones."""
+    cnt = 0
+    has_st = st.shape[0] > 0
+    if self_mode:
+        for p in range(s0, e1):
+            his = B[p, 1]
+            l0 = B[p, 2]
+            h0 = B[p, 3]
+            l1 = B[p, 4]
+            h1 = B[p, 5]
+            need = 3 ^ flag[p]
+            i = ent[p]
+            for q in range(p + 1, e1):
+                if B[q, 0] > his:
+                    break
+                if (flag[q] & need) != need:
+                    continue
+                if (B[q, 2] > h0) | (B[q, 3] < l0) | (B[q, 4] > h1) | (B[q, 5] < l1):
+                    continue
+                if skip_shared and _share_v(V, p, q):
+                    continue
+                j = ent[q]
+                pa = min(i, j)
+                pb = max(i, j)
+                if has_st and not _st_keep(st, pa, pb):
+                    continue
+                if pos < lim:
+                    out[pos, 0] = pa
+                    out[pos, 1] = pb
+                pos += 1
+                cnt += 1
+        return cnt
+    for side in range(2):
+        f0 = s0 if side == 0 else m
+        f1 = m if side == 0 else e1
+        g0 = m if side == 0 else s0
+        g1 = e1 if side == 0 else m
+        q0 = g0
+        for p in range(f0, f1):
+            los = B[p, 0]
+            if side == 0:
+                while q0 < g1 and B[q0, 0] < los:
+                    q0 += 1
+            else:
+                while q0 < g1 and B[q0, 0] <= los:
+                    q0 += 1
+            his = B[p, 1]
+            l0 = B[p, 2]
+            h0 = B[p, 3]
+            l1 = B[p, 4]
+            h1 = B[p, 5]
+            need = 3 ^ flag[p]
+            i = ent[p]
+            for q in range(q0, g1):
+                if B[q, 0] > his:
+                    break
+                if (flag[q] & need) != need:
+                    continue
+                if (B[q, 2] > h0) | (B[q, 3] < l0) | (B[q, 4] > h1) | (B[q, 5] < l1):
+                    continue
+                if skip_shared and _share_v(V, p, q):
+                    continue
+                j = ent[q]
+                ia = i if side == 0 else j
+                ib = j if side == 0 else i
+                if has_st and not _st_keep(st, ia, ib):
+                    continue
+                if pos < lim:
+                    out[pos, 0] = ia
+                    out[pos, 1] = ib - na
+                pos += 1
+                cnt += 1
+    return cnt
+
+
+@njit(parallel=True, cache=True)
+def _col_slots_v(B, flag, ent, V, start, mid, na, self_mode, skip_shared, st, slots, slot_col,
+                 slot_pos, slot_lim, out, slot_cnt):
+    """:func:`_col_slots` with :func:`_col_body_v`."""
+    for t in prange(slots.shape[0]):
+        k = slots[t]
+        pos = slot_pos[k]
+        for col in range(slot_col[k], slot_col[k + 1]):
+            pos += _col_body_v(B, flag, ent, V, start[col], mid[col], start[col + 1], na,
+                               self_mode, skip_shared, st, out, pos, slot_lim[k])
+        slot_cnt[k] = pos - slot_pos[k]
+
+
+@njit(parallel=True, cache=True)
 def _col_copy(src, src_pos, dst, dst_pos, cnt, done):
     for k in prange(cnt.shape[0]):
         if not done[k]:
@@ -2050,6 +2209,14 @@ def _col_work(out, key, shape, dtype=np.float64):
     return a[:size].reshape(shape)
 
 
+def _dealt(nslot):
+    """The parallel chunk size of the column sweep's slots (``COLUMN_DEAL``): one slot at a
+    time, or numba's default (one block a thread)."""
+    if COLUMN_DEAL and nslot > 1:
+        return parallel_chunksize(1)
+    return contextlib.nullcontext()
+
+
 def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
     n = lo.shape[0]
     if n == 0:
@@ -2058,6 +2225,7 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
     if not (np.isfinite(span) and span < 1e150):
         return _tree_fallback(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out)
     big = _col_work(out, "big", (n,), np.bool_)
+    gathered = COLUMN_GATHERED
     s, a0, a1, c, o0, o1, nx, ny, nbig = _col_setup(lo, hi, COLUMN_CELL, _COL_BIG_SPAN, big)
     ncol = nx * ny
     start = _col_work(out, "start", (ncol + 1,), np.int64)
@@ -2070,28 +2238,40 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
         _col_hist(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist)
         nent = _col_offsets(hist, start, mid)
         ent = _col_work(out, "ent", (nent,), np.int64)
-        flag = _col_work(out, "flag", (nent,), np.int64)
+        flag = _col_work(out, "flag8", (nent,), np.int8) if gathered else \
+            _col_work(out, "flag", (nent,), np.int64)
         _col_fill_par(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist, ent, flag)
     else:
         nent = _col_count(lo, hi, big, na, a0, a1, c, o0, o1, ny, start, mid)
         ent = _col_work(out, "ent", (nent,), np.int64)
-        flag = _col_work(out, "flag", (nent,), np.int64)
+        flag = _col_work(out, "flag8", (nent,), np.int8) if gathered else \
+            _col_work(out, "flag", (nent,), np.int64)
         if nent:
             order = np.argsort(lo[:, s], kind="stable")
             _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, flag)
     B = _col_work(out, "B", (nent, 6))
-    _col_gather(ent, lo, hi, s, a0, a1, B)
+    if gathered:
+        w = max(prims_a.shape[1], prims_b.shape[1], 3)
+        V = _col_work(out, "V", (nent, w) if skip_shared else (1, w), np.int64)
+        _col_gather_v(ent, lo, hi, s, a0, a1, na, prims_a, prims_b, skip_shared, B, V)
+        args = (B, flag, ent, V, start, mid, na, self_mode, skip_shared, st)
+        sweep = _col_slots_v
+    else:
+        _col_gather(ent, lo, hi, s, a0, a1, B)
+        args = (B, flag, ent, start, mid, na, self_mode, prims_a, prims_b, skip_shared, st)
+        sweep = _col_slots
     # slots: runs of whole columns with about equal entry counts, two per thread, swept in
     # parallel; the rows come in column order whatever the slots
-    nslot = max(1, min(_SLOTS, ncol, _SLOTS_PER_THREAD * get_num_threads()))
-    if get_num_threads() == 1:
+    nth = get_num_threads()
+    nslot = max(1, min(_SLOTS, ncol, (COLUMN_SLOTS_PER_THREAD if COLUMN_DEAL
+                                      else _SLOTS_PER_THREAD) * nth))
+    if nth == 1:
         nslot = 1
     slot_col = np.searchsorted(start, (nent * np.arange(nslot + 1)) // nslot).astype(np.int64)
     slot_col[0] = 0
     slot_col[-1] = ncol
     slots = np.arange(nslot, dtype=np.int64)
     cnt = np.zeros(nslot, dtype=np.int64)
-    args = (B, flag, ent, start, mid, na, self_mode, prims_a, prims_b, skip_shared, st)
     expected = out.expected if out is not None else 0
     if expected > 0:
         # one sweep into scratch sized from this buffer's previous query (2x, as the trees';
@@ -2099,10 +2279,12 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
         cap = (2 * expected) // nslot + 64 if nslot > 1 else 2 * expected + 1024
         buf = out.scratch_rows(nslot * cap) if nslot > 1 else out.reserve(cap)
         pos = cap * slots
-        _col_slots(*args, slots, slot_col, pos, pos + cap, buf, cnt)
+        with _dealt(nslot):
+            sweep(*args, slots, slot_col, pos, pos + cap, buf, cnt)
     else:
         pos = np.zeros(nslot, dtype=np.int64)
-        _col_slots(*args, slots, slot_col, pos, pos, _DUMMY, cnt)  # count pass
+        with _dealt(nslot):
+            sweep(*args, slots, slot_col, pos, pos, _DUMMY, cnt)  # count pass
         cap = -1
         buf = _DUMMY
     offsets = np.zeros(nslot, dtype=np.int64)
@@ -2130,7 +2312,7 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
             _col_copy(buf, pos, pairs, offsets, cnt, fits)
     redo = np.flatnonzero(~fits).astype(np.int64)
     if len(redo):
-        _col_slots(*args, redo, slot_col, offsets, offsets + cnt, pairs, np.empty(nslot, np.int64))
+        sweep(*args, redo, slot_col, offsets, offsets + cnt, pairs, np.empty(nslot, np.int64))
     if btotal:
         _col_big_kernel(*bargs, bcounts, boffsets, pairs[total:], True)
     if out is not None:
