@@ -343,7 +343,8 @@ def test_zsort_pairs_is_the_z_order_of_the_ranks():
 @pytest.mark.parametrize("threads", [1, 2])
 def test_gathered_sweep_and_dealt_slots_give_the_same_rows(monkeypatch, kind, threads):
     """``COLUMN_GATHERED`` (int8 flags, the entries' vertices gathered for the shared-vertex
-    test) and ``COLUMN_DEAL`` (slots taken one at a time): the rows and their order of the
+    test), ``COLUMN_DEAL`` (slots taken one at a time) and ``COLUMN_RADIX`` (the fill order
+    from a radix sort): the rows and their order of the
     sweep without them, self and two-set queries, with and without space-time boxes and
     primitives, on one and two threads."""
     if threads > numba.config.NUMBA_NUM_THREADS:
@@ -374,11 +375,11 @@ def test_gathered_sweep_and_dealt_slots_give_the_same_rows(monkeypatch, kind, th
     old = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
-        monkeypatch.setattr(bp, "COLUMN_GATHERED", False)
-        monkeypatch.setattr(bp, "COLUMN_DEAL", False)
+        for flag in ("COLUMN_GATHERED", "COLUMN_DEAL", "COLUMN_RADIX"):
+            monkeypatch.setattr(bp, flag, False)
         ref = queries()
-        monkeypatch.setattr(bp, "COLUMN_GATHERED", True)
-        monkeypatch.setattr(bp, "COLUMN_DEAL", True)
+        for flag in ("COLUMN_GATHERED", "COLUMN_DEAL", "COLUMN_RADIX"):
+            monkeypatch.setattr(bp, flag, True)
         got = queries()
     finally:
         numba.set_num_threads(old)
@@ -386,3 +387,26 @@ def test_gathered_sweep_and_dealt_slots_give_the_same_rows(monkeypatch, kind, th
         assert len(b) > 0 and np.array_equal(a, b)
     assert len(ref[1]) > len(ref[0]) > len(ref[2])  # primitives and space-time boxes skip rows
     assert as_set(ref[0]) == brute_self(lo_e, hi_e, E)
+
+
+def test_radix_order_is_the_stable_argsort():
+    """``_sweep_order`` (``COLUMN_RADIX``) orders the boxes as ``np.argsort(kind="stable")``:
+    ties by index, negative values, -0.0 equal to 0.0, tiny and huge magnitudes, one value."""
+    rng = np.random.default_rng(5)
+
+    class Out:
+        pass
+
+    out = Out()
+    for t in range(40):
+        n = int(rng.integers(256, 2000))
+        if t % 3 == 0:
+            x = rng.choice([-2.5, -1.0, -0.0, 0.0, 1e-300, 3.0, 7.25, -1e300], n)
+        elif t % 3 == 1:
+            x = rng.normal(size=n) * 10.0 ** rng.integers(-5, 5)
+        else:
+            x = np.full(n, 0.5)
+        lo = rng.random((n, 3))
+        lo[:, t % 3] = x
+        assert np.array_equal(bp._sweep_order(lo, t % 3, out),
+                              np.argsort(lo[:, t % 3], kind="stable"))

@@ -1700,6 +1700,10 @@ COLUMN_DEAL = True
 #: flags and the primitives' rows at the boxes' numbers (a scattered read per tested pair).
 #: The same rows in the same order
 COLUMN_GATHERED = True
+#: the column fill's order of the boxes (by their low end on the sweep axis, ties by index)
+#: from a radix sort (``_radix_order``) instead of ``np.argsort(kind="stable")``: the same
+#: order
+COLUMN_RADIX = True
 COLUMN_SLOTS_PER_THREAD = 8
 
 
@@ -1813,6 +1817,60 @@ def _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, fl
                     fill_b[col] = p + 1
                 ent[p] = i
                 flag[p] = (1 if x == x0 else 0) | (2 if y == y0 else 0)
+
+
+@njit(cache=True)
+def _radix_order(bits, order, key, key2, tmp, cnt):
+    """``order``: ``0 .. m-1`` by the float64 values whose bits (int64 view, no -0.0, no NaN)
+    are ``bits``, ties by index: ``np.argsort(values, kind="stable")``, by an LSD radix sort of
+    11-bit digits (stable; a digit every value shares is skipped). ``key``, ``key2``, ``tmp``:
+    int64 scratch of ``m``, ``cnt``: int64 scratch of (6, 2049)."""
+    m = bits.shape[0]
+    flip = np.int64(-9223372036854775807 - 1)
+    cnt[:, :] = 0
+    for i in range(m):
+        k = bits[i]
+        k = (k ^ ((k >> 63) & np.int64(9223372036854775807))) ^ flip  # unsigned order
+        key[i] = k
+        order[i] = i
+        for d in range(6):
+            cnt[d, ((k >> (11 * d)) & 2047) + 1] += 1
+    src_k, dst_k, src_i, dst_i = key, key2, order, tmp
+    moved = 0
+    for d in range(6):
+        c = cnt[d]
+        if c[((src_k[0] >> (11 * d)) & 2047) + 1] == m:
+            continue  # every value has this digit
+        for b in range(2048):
+            c[b + 1] += c[b]
+        for r in range(m):
+            k = src_k[r]
+            b = (k >> (11 * d)) & 2047
+            q = c[b]
+            c[b] = q + 1
+            dst_k[q] = k
+            dst_i[q] = src_i[r]
+        src_k, dst_k = dst_k, src_k
+        src_i, dst_i = dst_i, src_i
+        moved += 1
+    if moved % 2 == 1:
+        order[:] = tmp
+
+
+def _sweep_order(lo, s, out):
+    """The boxes by their low end on the sweep axis ``s``, ties by index (``COLUMN_RADIX``:
+    :func:`_radix_order`; else ``np.argsort(kind="stable")``, the same order)."""
+    n = lo.shape[0]
+    if not COLUMN_RADIX or n < 256:
+        return np.argsort(lo[:, s], kind="stable")
+    vals = _col_work(out, "sort_v", (n,))
+    np.add(lo[:, s], 0.0, out=vals)  # -0.0 -> 0.0 (equal in argsort)
+    order = _col_work(out, "sort_o", (n,), np.int64)
+    _radix_order(vals.view(np.int64), order, _col_work(out, "sort_k", (n,), np.int64),
+                 _col_work(out, "sort_k2", (n,), np.int64),
+                 _col_work(out, "sort_t", (n,), np.int64),
+                 _col_work(out, "sort_c", (6, 2049), np.int64))
+    return order
 
 
 @njit(parallel=True, cache=True)
@@ -2233,7 +2291,7 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
     nch = get_num_threads() if n >= _COL_PAR_MIN else 1
     if nch > 1:
         # the counting sort in chunks, in parallel (same entries in the same order)
-        order = np.argsort(lo[:, s], kind="stable")
+        order = _sweep_order(lo, s, out)
         hist = _col_work(out, "hist", (nch, 2, ncol), np.int64)
         _col_hist(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist)
         nent = _col_offsets(hist, start, mid)
@@ -2247,7 +2305,7 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
         flag = _col_work(out, "flag8", (nent,), np.int8) if gathered else \
             _col_work(out, "flag", (nent,), np.int64)
         if nent:
-            order = np.argsort(lo[:, s], kind="stable")
+            order = _sweep_order(lo, s, out)
             _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, flag)
     B = _col_work(out, "B", (nent, 6))
     if gathered:

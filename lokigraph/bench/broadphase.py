@@ -23,6 +23,12 @@ Timed, each as the median over ``repeats`` runs after a JIT warm-up run:
   box computation alone (the grid has no tree to refit), compared with the BVH's refit;
   "z-sort" the Morton ranks and the Z-order sort (:func:`zsort_pairs`) of both pair sets that
   the contacts add to the grid's candidates (``contacts.GRID_ORDER``), timed apart.
+
+``--ab-grid "COLUMN_CELL=1.0,COLUMN_GATHERED=False"``: instead, the sorted column grid's
+boxes+query with those settings of the broad phase ("A") against the defaults ("B"), each of
+``repeats`` rounds running both in alternating order (ABBA), so machine load hits both alike:
+median CPU (process time, all threads) and wall ms of each, the median of the per-round CPU
+and wall ratios B / A, and whether both give the same candidate sets.
 """
 
 from __future__ import annotations
@@ -162,11 +168,69 @@ def bench_one(n_tri: int, repeats: int):
                 cpu_sort=1e3 * np.median(cpu_sort))
 
 
+def ab_grid(n_tri: int, repeats: int, settings: str):
+    """The column grid's boxes+query with the broad-phase ``settings`` ("NAME=value,...", as
+    "A") and with the defaults ("B"), interleaved; see the module docstring."""
+    n = int(round(np.sqrt(n_tri / 2.0))) + 1
+    X1, F, h = rolled_sheet(n, 1.0)
+    X2, _, _ = rolled_sheet(n, 2.0)
+    E = bp.mesh_edges(F)
+    nv = X1.shape[0]
+    verts = np.arange(nv, dtype=np.int64)
+    thick = np.full(nv, 0.1 * h)
+    lo_v, hi_v = np.empty((nv, 3)), np.empty((nv, 3))
+    lo_e, hi_e = np.empty((len(E), 3)), np.empty((len(E), 3))
+    lo_f, hi_f = np.empty((len(F), 3)), np.empty((len(F), 3))
+    alt = {}
+    for kv in settings.split(","):
+        k, v = (t.strip() for t in kv.split("="))
+        cur = getattr(bp, k)
+        alt[k] = v == "True" if isinstance(cur, bool) else type(cur)(float(v))
+    default = {k: getattr(bp, k) for k in alt}
+    bufs = {a: (bp.PairBuffer(), bp.PairBuffer()) for a in "AB"}
+    cpu = {"A": [], "B": []}
+    wall = {"A": [], "B": []}
+    sets = {}
+
+    def run(a):
+        for k in alt:
+            setattr(bp, k, alt[k] if a == "A" else default[k])
+        w0, c0 = time.perf_counter(), time.process_time()
+        bp.primitive_boxes(X1, verts, X2, thick, lo_v, hi_v)
+        bp.primitive_boxes(X1, E, X2, thick, lo_e, hi_e)
+        bp.primitive_boxes(X1, F, X2, thick, lo_f, hi_f)
+        vf = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, verts, F, out=bufs[a][0])
+        ee = bp.column_query_self(lo_e, hi_e, E, out=bufs[a][1])
+        return time.process_time() - c0, time.perf_counter() - w0, vf, ee
+
+    try:
+        for rep in range(repeats + 2):  # two warm-up rounds (JIT, buffers)
+            for a in ("AB" if rep % 2 == 0 else "BA"):
+                c, w, vf, ee = run(a)
+                if rep >= 2:
+                    cpu[a].append(c)
+                    wall[a].append(w)
+                if rep == 1:
+                    sets[a] = (set(map(tuple, vf.tolist())), set(map(tuple, ee.tolist())))
+    finally:
+        for k, v in default.items():
+            setattr(bp, k, v)
+    ca, cb = np.array(cpu["A"]), np.array(cpu["B"])
+    wa, wb = np.array(wall["A"]), np.array(wall["B"])
+    return dict(tris=len(F), cpu_a=1e3 * np.median(ca), cpu_b=1e3 * np.median(cb),
+                wall_a=1e3 * np.median(wa), wall_b=1e3 * np.median(wb),
+                cpu_ratio=float(np.median(cb / ca)), wall_ratio=float(np.median(wb / wa)),
+                same=sets["A"] == sets["B"], vf=len(sets["B"][0]), ee=len(sets["B"][1]))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[10_000, 50_000, 200_000],
                     help="approximate triangle counts")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--ab-grid", default="", metavar="NAME=VALUE,...",
+                    help="the column grid with these broad-phase settings against the defaults, "
+                    "interleaved (see the module docstring)")
     args = ap.parse_args(argv)
     try:
         import numba
@@ -174,6 +238,20 @@ def main(argv=None):
         threads = numba.get_num_threads()
     except Exception:  # pragma: no cover
         threads = -1
+    if args.ab_grid:
+        print(f"sorted column grid, boxes+query (rolled sheet, self VF + EE), numba threads = "
+              f"{threads}: A = {args.ab_grid}, B = defaults, {args.repeats} interleaved rounds")
+        hdr = (f"{'triangles':>10} {'CPU ms A':>9} {'CPU ms B':>9} {'CPU B/A':>8} "
+               f"{'wall ms A':>10} {'wall ms B':>10} {'wall B/A':>9} {'same sets':>10}")
+        print(hdr)
+        print("-" * len(hdr))
+        for s in args.sizes:
+            r = ab_grid(s, args.repeats, args.ab_grid)
+            print(f"{r['tris']:>10d} {r['cpu_a']:>9.2f} {r['cpu_b']:>9.2f} {r['cpu_ratio']:>8.3f} "
+                  f"{r['wall_a']:>10.2f} {r['wall_b']:>10.2f} {r['wall_ratio']:>9.3f} "
+                  f"{str(r['same']):>10}")
+        print("(median over the rounds; ratios: median of the per-round ratios)")
+        return 0
     print(f"lokigraph broad phase benchmark: rolled cloth sheet, self VF + EE, numba threads = {threads}")
     print("times: median of", args.repeats, "runs after JIT warm-up; build/refit include box computation")
     hdr = (f"{'triangles':>10} {'vertices':>9} {'build ms':>9} {'refit ms':>9} {'query ms':>9} "
