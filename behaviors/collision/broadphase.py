@@ -1693,18 +1693,21 @@ _COL_PAR_MIN = 16384
 #: ``COLUMN_SLOTS_PER_THREAD`` a thread, taken by the threads one at a time as they finish
 #: (``numba.parallel_chunksize(1)``) instead of one contiguous block of slots a thread: the
 #: sweep's cost per entry varies over the grid (16 slots of the 50k rolled sheet's edge-edge
-#: query, 1 thread: 0.8-4.8 ms). The same rows in the same order
+#: query, 1 thread: 0.8-4.8 ms; a thread held up by machine load then delays one slot, not
+#: half the sweep). The same rows in the same order. Its wall-time gain is not measured: the
+#: shared 2-core machine ran at load 4-6 (wall 2-3x CPU whatever the setting)
 COLUMN_DEAL = True
+COLUMN_SLOTS_PER_THREAD = 8
 #: the column sweep reads int8 flags and every entry's primitive vertices gathered beside its
 #: box row (``_col_gather_v``, ``_col_body_v``) for the shared-vertex test, instead of int64
 #: flags and the primitives' rows at the boxes' numbers (a scattered read per tested pair).
-#: The same rows in the same order
+#: The same rows in the same order. The 50k rolled sheet's VF + EE queries (1 thread,
+#: interleaved, CPU): median ratio 0.736 (36.1 -> 26.6 ms; edge-edge 0.650, vertex-face 0.881)
 COLUMN_GATHERED = True
 #: the column fill's order of the boxes (by their low end on the sweep axis, ties by index)
 #: from a radix sort (``_radix_order``) instead of ``np.argsort(kind="stable")``: the same
-#: order
+#: order (the rolled sheet's 75k edge boxes, 1 thread, interleaved: 4.7 against 9.7 ms)
 COLUMN_RADIX = True
-COLUMN_SLOTS_PER_THREAD = 8
 
 
 @njit(cache=True)
