@@ -12,38 +12,10 @@ import numpy as np
 import pytest
 
 from lokigraph.api import compile_file
-from lokigraph.behaviors.collision import broadphase as bp
 from lokigraph.behaviors.collision import contacts as C
-from lokigraph.behaviors.collision.narrowphase import _pt_tri_sq, _seg_seg_sq
 from lokigraph.behaviors.topology import triangle_edges
 from lokigraph.run import Simulation
-
-
-def _missing(x, rows_vf, rows_ee, tris, edges, target):
-    """(vertex, triangle) and (edge, edge) pairs of the mesh closer than ``target`` [m] at
-    ``x`` that are not among the rows; brute force over the box candidates."""
-    verts = np.unique(tris)
-    r = 0.5 * target
-    have_vf = {tuple(t) for t in rows_vf.tolist()}
-    have_ee = {tuple(t) for t in rows_ee.tolist()}
-    miss = []
-    lo_v, hi_v = bp.primitive_boxes(x, verts, thickness=r)
-    lo_t, hi_t = bp.primitive_boxes(x, tris, thickness=r)
-    for i, j in bp.query_pairs(bp.build_bvh(lo_v, hi_v), bp.build_bvh(lo_t, hi_t),
-                               verts, tris).tolist():
-        p, t = verts[i], tris[j]
-        if p in t:
-            continue
-        if _pt_tri_sq(*x[p], *x[t[0]], *x[t[1]], *x[t[2]])[0] < target ** 2 \
-                and (p, *t) not in have_vf:
-            miss.append(("vf", p, *t))
-    lo_e, hi_e = bp.primitive_boxes(x, edges, thickness=r)
-    for i, j in bp.query_self(bp.build_bvh(lo_e, hi_e), edges).tolist():
-        a, b = edges[i], edges[j]
-        if _seg_seg_sq(*x[a[0]], *x[a[1]], *x[b[0]], *x[b[1]])[0] < target ** 2 \
-                and (*a, *b) not in have_ee and (*b, *a) not in have_ee:
-            miss.append(("ee", *a, *b))
-    return miss
+from test_collision_spacetime import _pairs_within as _missing  # brute force, rows missing
 
 
 def _rows(c):
