@@ -15,6 +15,7 @@ from lokigraph.api import compile_file
 from lokigraph.behaviors.collision import contacts as C
 from lokigraph.behaviors.topology import triangle_edges
 from lokigraph.run import Simulation
+from test_collision_spacetime import _flat_tube_scene
 from test_collision_spacetime import _pairs_within as _missing  # brute force, rows missing
 
 
@@ -105,33 +106,13 @@ def test_relative_bound_is_sharp(scene_file, monkeypatch):
     assert m_after == 0
 
 
-def _tube_scene(scene_file):
-    return scene_file("""
-    lokigraph: 1
-    frames: {start: 1, end: 3, fps: 24}
-    substeps: 1
-    gravity: [0, 0, 0]
-    elements:
-      - name: tube
-        geometry:
-          generator: tube
-          params: {radius: 0.01, length: 0.2, segments: [12, 8], axis: x, center: [0, 0.5, 0]}
-        components:
-          Dynamic: {mass_density: 0.15}
-          Collider: {thickness: 0.002}
-      - name: contact
-        components:
-          CollisionGroup: {members: [tube], methods: [vertex_face, edge_edge, self]}
-    """, "tube.yaml")
-
-
 def test_relative_check_flags_stopped_walls(scene_file, monkeypatch):
     """The case of ``test_iteration_rows_hold_vertices_stopped_on_their_path``: a tube falls as
     a whole, its lower wall stops where it starts while the upper one arrives on it. The
     space-time rows miss the wall-wall pairs; the check flags the walls' vertices, and the
     re-detection over the motion to that iterate holds every pair within its target."""
     monkeypatch.setattr(C, "SPACETIME_RELATIVE", True)
-    sim = Simulation(compile_file(_tube_scene(scene_file)))
+    sim = Simulation(compile_file(_flat_tube_scene(scene_file)))
     fall = 0.02
     sim.state.particle_qd[:] = [0.0, -fall * 24, 0.0]
     tris, edges = _mesh(sim)

@@ -1951,15 +1951,21 @@ def _col_gather(ent, lo, hi, s, a0, a1, B):
 
 
 @njit(cache=True, inline="always")
+def _st_keep(st, ia, ib):
+    """The space-time tests of a pair (rows ``ia``, ``ib`` of ``st``, not empty): not two inactive
+    primitives, space-time overlap within one group."""
+    if st[ia, 12] == 0.0 and st[ib, 12] == 0.0:
+        return False
+    return not (st[ia, 13] == st[ib, 13] and not _st_overlap(st, ia, st, ib))
+
+
+@njit(cache=True, inline="always")
 def _col_keep(pa, pb, ia, ib, prims_a, prims_b, skip_shared, st):
     """The leaf tests of ``_ovl`` after the box overlap, for primitives pa (set a) and pb (set
     b), rows ia, ib of ``st``: not two inactive primitives, space-time overlap within one group,
     no shared vertex."""
-    if st.shape[0]:
-        if st[ia, 12] == 0.0 and st[ib, 12] == 0.0:
-            return False
-        if st[ia, 13] == st[ib, 13] and not _st_overlap(st, ia, st, ib):
-            return False
+    if st.shape[0] and not _st_keep(st, ia, ib):
+        return False
     return not (skip_shared and _share_vertex(prims_a, pa, prims_b, pb))
 
 
@@ -2093,14 +2099,6 @@ def _share_v(V, p, q):
             if v == V[q, y]:
                 return True
     return False
-
-
-@njit(cache=True, inline="always")
-def _st_keep(st, ia, ib):
-    """The space-time tests of ``_col_keep`` (rows ``ia``, ``ib`` of ``st``, not empty)."""
-    if st[ia, 12] == 0.0 and st[ib, 12] == 0.0:
-        return False
-    return not (st[ia, 13] == st[ib, 13] and not _st_overlap(st, ia, st, ib))
 
 
 @njit(cache=True)

@@ -742,14 +742,7 @@ def _detect_all(d, x, x1, v, h, spacetime=False, slack=0.0) -> int:
     tolerant = 0
     for g in d.groups:  # loop over groups, not primitives
         # boxes of both sets are inflated, so a pair is found within 2 * infl
-        infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
-        if slack:
-            infl += slack
-        # vertices recently pushed through a kinematic sheet search 4x wider so that the
-        # contact pulling them back is not lost when they are deeper than the contact band
-        if g.recover.any():
-            recent = (g.crossed >= g.stamp - SIDE_MEMORY).any(axis=1)
-            infl[recent] *= 4.0
+        infl = _infl(g, slack)
         vf, ee, t = _detect_group(g, x, x1, infl, v, h, spacetime)
         vf_all.append(vf)
         ee_all.append(ee)
@@ -1892,10 +1885,12 @@ def _relative_check(c, x, p) -> int:
 
 
 def _infl(g, slack=0.0):
-    """Per-vertex box inflation [m] of group ``g``'s detections (as ``_detect_all``)."""
+    """Per-vertex box inflation [m] of group ``g``'s detections, ``slack`` [m] more."""
     infl = np.maximum(g.th_out, g.th_in) + 0.5 * g.margin
     if slack:
         infl += slack
+    # vertices recently pushed through a kinematic sheet search 4x wider so that the
+    # contact pulling them back is not lost when they are deeper than the contact band
     if g.recover.any():
         recent = (g.crossed >= g.stamp - SIDE_MEMORY).any(axis=1)
         infl[recent] *= 4.0

@@ -68,31 +68,49 @@ def rolled_sheet(n: int, t: float = 0.0):
     return X, F, h
 
 
-def bench_one(n_tri: int, repeats: int):
+def _sheet(n_tri: int):
+    """The rolled sheet of about ``n_tri`` triangles at steps 0, 1 and 2, its triangles, edge
+    length, edges, vertex indices, box thickness, and arrays for the vertex, edge and triangle
+    boxes (lo, hi)."""
     n = int(round(np.sqrt(n_tri / 2.0))) + 1
     X0, F, h = rolled_sheet(n, 0.0)
     X1, _, _ = rolled_sheet(n, 1.0)
     X2, _, _ = rolled_sheet(n, 2.0)
     E = bp.mesh_edges(F)
     nv = X0.shape[0]
-    verts = np.arange(nv, dtype=np.int64)
-    thick = np.full(nv, 0.1 * h)
+    boxes = tuple(np.empty((m, 3)) for m in (nv, nv, len(E), len(E), len(F), len(F)))
+    return (X0, X1, X2), F, h, E, np.arange(nv, dtype=np.int64), np.full(nv, 0.1 * h), boxes
+
+
+def _boxes(Xa, Xb, verts, E, F, thick, boxes):
+    """The vertex, edge and triangle boxes of the motion Xa -> Xb into ``boxes``."""
+    lo_v, hi_v, lo_e, hi_e, lo_f, hi_f = boxes
+    bp.primitive_boxes(Xa, verts, Xb, thick, lo_v, hi_v)
+    bp.primitive_boxes(Xa, E, Xb, thick, lo_e, hi_e)
+    bp.primitive_boxes(Xa, F, Xb, thick, lo_f, hi_f)
+
+
+def _grid_pairs(verts, E, F, boxes, buf_vf, buf_ee):
+    """The column grid's self VF and EE candidates of ``boxes``."""
+    lo_v, hi_v, lo_e, hi_e, lo_f, hi_f = boxes
+    vf = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, verts, F, out=buf_vf)
+    ee = bp.column_query_self(lo_e, hi_e, E, out=buf_ee)
+    return vf, ee
+
+
+def bench_one(n_tri: int, repeats: int):
+    (X0, X1, X2), F, h, E, verts, thick, boxes = _sheet(n_tri)
+    nv = len(verts)
     step_move = float(np.max(np.linalg.norm(X1 - X0, axis=1)) / h)
-    lo_v = np.empty((nv, 3)); hi_v = np.empty((nv, 3))
-    lo_e = np.empty((len(E), 3)); hi_e = np.empty((len(E), 3))
-    lo_f = np.empty((len(F), 3)); hi_f = np.empty((len(F), 3))
+    lo_v, hi_v, lo_e, hi_e, lo_f, hi_f = boxes
     buf_vf, buf_ee = bp.PairBuffer(), bp.PairBuffer()
 
     def build():
-        bp.primitive_boxes(X0, verts, X1, thick, lo_v, hi_v)
-        bp.primitive_boxes(X0, E, X1, thick, lo_e, hi_e)
-        bp.primitive_boxes(X0, F, X1, thick, lo_f, hi_f)
+        _boxes(X0, X1, verts, E, F, thick, boxes)
         return bp.build_bvh(lo_v, hi_v), bp.build_bvh(lo_e, hi_e), bp.build_bvh(lo_f, hi_f)
 
     def refit(trees):
-        bp.primitive_boxes(X1, verts, X2, thick, lo_v, hi_v)
-        bp.primitive_boxes(X1, E, X2, thick, lo_e, hi_e)
-        bp.primitive_boxes(X1, F, X2, thick, lo_f, hi_f)
+        _boxes(X1, X2, verts, E, F, thick, boxes)
         bp.refit_bvh(trees[0], lo_v, hi_v)
         bp.refit_bvh(trees[1], lo_e, hi_e)
         bp.refit_bvh(trees[2], lo_f, hi_f)
@@ -105,13 +123,10 @@ def bench_one(n_tri: int, repeats: int):
     col_vf, col_ee = bp.PairBuffer(), bp.PairBuffer()
 
     def col_boxes():
-        bp.primitive_boxes(X1, verts, X2, thick, lo_v, hi_v)
-        bp.primitive_boxes(X1, E, X2, thick, lo_e, hi_e)
-        bp.primitive_boxes(X1, F, X2, thick, lo_f, hi_f)
+        _boxes(X1, X2, verts, E, F, thick, boxes)
 
     def col_query():
-        vf = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, verts, F, out=col_vf)
-        ee = bp.column_query_self(lo_e, hi_e, E, out=col_ee)
+        vf, ee = _grid_pairs(verts, E, F, boxes, col_vf, col_ee)
         return vf.shape[0], ee.shape[0]
 
     rank_v, rank_e, rank_f = (np.empty(len(a), np.int64) for a in (verts, E, F))
@@ -171,16 +186,7 @@ def bench_one(n_tri: int, repeats: int):
 def ab_grid(n_tri: int, repeats: int, settings: str):
     """The column grid's boxes+query with the broad-phase ``settings`` ("NAME=value,...", as
     "A") and with the defaults ("B"), interleaved; see the module docstring."""
-    n = int(round(np.sqrt(n_tri / 2.0))) + 1
-    X1, F, h = rolled_sheet(n, 1.0)
-    X2, _, _ = rolled_sheet(n, 2.0)
-    E = bp.mesh_edges(F)
-    nv = X1.shape[0]
-    verts = np.arange(nv, dtype=np.int64)
-    thick = np.full(nv, 0.1 * h)
-    lo_v, hi_v = np.empty((nv, 3)), np.empty((nv, 3))
-    lo_e, hi_e = np.empty((len(E), 3)), np.empty((len(E), 3))
-    lo_f, hi_f = np.empty((len(F), 3)), np.empty((len(F), 3))
+    (_, X1, X2), F, _, E, verts, thick, boxes = _sheet(n_tri)
     alt = {}
     for kv in settings.split(","):
         k, v = (t.strip() for t in kv.split("="))
@@ -196,11 +202,8 @@ def ab_grid(n_tri: int, repeats: int, settings: str):
         for k in alt:
             setattr(bp, k, alt[k] if a == "A" else default[k])
         w0, c0 = time.perf_counter(), time.process_time()
-        bp.primitive_boxes(X1, verts, X2, thick, lo_v, hi_v)
-        bp.primitive_boxes(X1, E, X2, thick, lo_e, hi_e)
-        bp.primitive_boxes(X1, F, X2, thick, lo_f, hi_f)
-        vf = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, verts, F, out=bufs[a][0])
-        ee = bp.column_query_self(lo_e, hi_e, E, out=bufs[a][1])
+        _boxes(X1, X2, verts, E, F, thick, boxes)
+        vf, ee = _grid_pairs(verts, E, F, boxes, *bufs[a])
         return time.process_time() - c0, time.perf_counter() - w0, vf, ee
 
     try:
