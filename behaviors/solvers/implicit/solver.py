@@ -569,6 +569,8 @@ class _ImplicitData:
     shape_edges: np.ndarray | None = None
     shape_kbar: np.ndarray | None = None
     shape_map: np.ndarray | None = None
+    #: per Newton iteration diagnostics (a list a bench script sets; None: off), ``_trace``
+    trace: list | None = None
 
 
 class ImplicitSolver(Behavior):
@@ -1122,6 +1124,8 @@ class ImplicitSolver(Behavior):
             if d.elim is not None:  # compliant unknowns apart: -g_c by their diagonal block
                 np.copyto(d.elim_rhs, neg[d.elim])
                 neg[d.elim] = 0.0
+            if d.trace is not None:
+                tr0 = self._trace_start(ctx, d, xs, xt, g)
             it, res = d.precond.solve(d.A, neg, cg_tol, P.cg_iterations, dx, w)
             if d.elim is not None:
                 invert_blocks(d.A.data[d.elim_diag], d.elim_inv)
@@ -1131,7 +1135,7 @@ class ImplicitSolver(Behavior):
             c["cg_res"] = max(c["cg_res"], res)
             dx[fixed] = 0.0
             slope = float(np.vdot(g, dx))
-            alpha = 1.0
+            alpha, E1 = 1.0, np.nan
             on_segment = False  # xs ends on a segment _extend_live visited
             if P.line_search and slope < 0.0:
                 xtry = xs + dx
@@ -1159,6 +1163,7 @@ class ImplicitSolver(Behavior):
             if c["step_v"] < P.newton_tolerance <= full:
                 c["cut_steps"] += 1
             lagged_ok = True
+            dl = top = dgap = 0.0
             if d.shapes is not None:  # friction lagged from this iterate's normal forces
                 C["lam_prev"][:] = C["lam"]
                 C["active"] = lag_contacts_al(xs, fixed, *d.shapes[:5], C["kc"], C["mult"],
@@ -1172,10 +1177,49 @@ class ImplicitSolver(Behavior):
                                                     on_segment=on_segment)
                 if top > 0.0 and dl > P.contact_tolerance * top and dgap > gap_tol:
                     lagged_ok = False
+            if d.trace is not None:
+                self._trace_end(ctx, d, xs, xt, opts, tr0, it_n, full, alpha, E0, E1,
+                                lagged_ok, dl, top, dgap, (it, res))
             if stop_v < P.newton_tolerance and lagged_ok:
                 break
         else:  # stopped at the cap: hard_multipliers 'converged' keeps the multipliers
             c["capped"] += int(contacts)
+
+    def _trace_start(self, ctx, d, x, xt, g):
+        """``d.trace``: the state before a Newton iteration's step: the contact rows' active
+        set and the 2-norms of the gradient, of the rows' friction part and of their normal
+        part."""
+        sets = d.rows.get("sets", [])
+        gf = np.zeros_like(x)
+        gn = np.zeros_like(x)
+        eps = self.params.friction_velocity * ctx.dt
+        for rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf, _mk, sel, ns in sets:
+            for m, gg in ((mu, gf), (0.0 * mu, gn)):
+                row_energy(x, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef, kr, lam, m, eps,
+                           1, gg, d.rows["A1"], d.diag, False, 0.0, xt, d.compliant,
+                           sel[:ns[0]])
+        gf -= gn
+        gf[d.cur_fixed] = 0.0
+        gn[d.cur_fixed] = 0.0
+        return {"act": [st[6] > 0.0 for st in sets], "g": float(np.linalg.norm(g)),
+                "g_fric": float(np.linalg.norm(gf)), "g_normal": float(np.linalg.norm(gn))}
+
+    def _trace_end(self, ctx, d, x, xt, opts, tr0, it_n, full, alpha, E0, E1, lagged_ok, dl,
+                   top, dgap, cg):
+        """``d.trace``: one record per Newton iteration (see graphs/bench/implicit_newton.py)."""
+        enter = leave = live = 0
+        for a0, st in zip(tr0["act"], d.rows.get("sets", [])):
+            a1 = st[6] > 0.0
+            enter += int(np.count_nonzero(a1 & ~a0))
+            leave += int(np.count_nonzero(a0 & ~a1))
+            live += int(st[11][0])
+        E2 = self._potential(ctx, d, x, 0, opts, xt, None)  # with the rows lagged at x
+        d.trace.append(dict(it=it_n, dx=full, alpha=alpha, E0=E0, E1=E1, E2=E2, dl=dl, top=top,
+                            dgap=dgap, live=live, active=int(d.rows.get("active", 0)),
+                            enter=enter, leave=leave, g=tr0["g"], g_fric=tr0["g_fric"],
+                            g_normal=tr0["g_normal"], lagged_ok=lagged_ok, cg=cg[0],
+                            cg_res=cg[1],
+                            dt=ctx.dt))
 
     def _project(self, ctx, d, p):
         """The projection pass of the non-energy constraint types (module docstring)."""

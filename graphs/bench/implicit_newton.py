@@ -1,0 +1,150 @@
+"""Why Newton does not converge at contact (issue #11): the implicit solver's Newton iterations
+one by one, from the solver's ``trace`` hook (``_ImplicitData.trace``), on the cloth-on-sphere
+drops and the sleeve elbow.
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_newton.py drop 64 10 [k=v ...]
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_newton.py elbow 60 [k=v ...]
+
+``k=v`` become implicit_solver overrides. Per frame: Newton iterations, substeps that reached
+the cap, and which stop test held them there (``step``: the Newton step was still above
+newton_tolerance at the cap; ``lag``: the step was below it but a lagged normal force still
+changed by more than contact_tolerance). With ``--iters F`` (a frame, 1-based) every Newton
+iteration of that frame's substeps: |dx| [m/s] (the Newton step, before the line search),
+alpha (the line search's), E0 -> E1 the incremental potential before and after the line
+search (rows lagged at the old iterate), E2 after re-lagging at the new iterate, the largest
+lagged normal-force change dl [N] and the largest force top [N], its largest change over
+stiffness dgap [m], live rows, active rows, rows entering / leaving the active set, and the
+2-norms of the gradient, of the contact rows' friction part and of their normal part.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import implicit_drop as D  # noqa: E402
+import implicit_knee as K  # noqa: E402
+
+from lokigraph.api import compile_file  # noqa: E402
+from lokigraph.behaviors.collision.intersect import intersect_meshes  # noqa: E402
+from lokigraph.run import Simulation  # noqa: E402
+
+
+def solver_data(sim):
+    from lokigraph.behaviors.solvers.implicit.solver import ImplicitSolver
+    return next(b for b in sim.schedule.all() if isinstance(b.behavior, ImplicitSolver))
+
+
+def build(kind, n, overrides, nofric=False):
+    """(simulation, compiled, cloth element, body elements) of the scene; ``nofric``: every
+    ``friction:`` of the scene text set to 0."""
+    tmp = Path(tempfile.mkdtemp())
+    if kind == "drop":
+        p = tmp / f"cloth_sphere_{n}_implicit.yaml"
+        text = D.scene_text(n, 1, overrides)
+        cloth, bodies = "cloth", ("ball",)
+    else:
+        yaml, maps, cloth, bodies, _ = K.SCENES["sleeve_elbow"]
+        for m in maps:
+            shutil.copy(K.EX / m, tmp / m)
+        p = tmp / "sleeve_elbow_implicit.yaml"
+        text = K.scene_text("sleeve_elbow", overrides)
+    if nofric:
+        text = re.sub(r"friction: [0-9.e+-]+", "friction: 0.0", text)
+    p.write_text(text)
+    c = compile_file(p)
+    sim = Simulation(c)
+    return sim, c, c.scene.element(cloth), [c.scene.element(b) for b in bodies]
+
+
+def substeps_of(trace):
+    """Split a trace into substeps (it restarts at 1)."""
+    out = []
+    for r in trace:
+        if r["it"] == 1:
+            out.append([])
+        out[-1].append(r)
+    return out
+
+
+def frame_row(kind, sim, c, cl, bodies, st, cpu, trace, cap, tol):
+    q, v = sim.state.particle_q, sim.state.particle_qd
+    cm = (q[cl.vertex_slice], cl.geometry.triangles)
+    nself = int(intersect_meshes([cm], touching=False)[0])
+    pen = 0
+    for e in bodies:
+        _, pairs = intersect_meshes([cm, (q[e.vertex_slice], e.geometry.triangles)],
+                                    touching=False)
+        pen += int((pairs[:, 0] != pairs[:, 2]).sum())
+    sd = c.schedule.find("StretchConstraint")[0].data
+    strain = float((np.linalg.norm(q[sd.idx[:, 1]] - q[sd.idx[:, 0]], axis=1) / sd.rest
+                    - 1.0).max())
+    speed = np.linalg.norm(v[cl.vertex_slice], axis=1)
+    near = np.linalg.norm(q[cl.vertex_slice], axis=1) < 0.15
+    subs = substeps_of(trace)
+    capped = [s for s in subs if len(s) >= cap]
+    by_step = sum(1 for s in capped if s[-1]["dx"] >= tol)
+    return dict(strain=strain, self=nself, pen=pen, vmax=float(speed.max()),
+                vnear=float(speed[near].max()) if near.any() else 0.0,
+                newton=int(st.get("newton_iterations", 0)), cg=int(st.get("cg_iterations", 0)),
+                subs=len(subs), capped=len(capped), by_step=by_step,
+                by_lag=len(capped) - by_step, cpu=cpu,
+                halvings=int(st.get("line_search_halvings", 0)))
+
+
+def print_iters(trace):
+    print("   it    |dx|m/s  alpha         E0-E1     E2-E1       dl_N      top_N     dgap_m"
+          "   live active  +in -out      |g|   |g_fric| |g_norm|  cg  cg_res lag_ok")
+    for r in trace:
+        print(f"  {r['it']:3d} {r['dx']:10.3e} {r['alpha']:6.3g} {r['E0'] - r['E1']:13.4e}"
+              f" {r['E2'] - r['E1']:9.2e} {r['dl']:10.3e} {r['top']:10.3e} {r['dgap']:10.3e}"
+              f" {r['live']:6d} {r['active']:6d} {r['enter']:4d} {r['leave']:4d}"
+              f" {r['g']:8.2e} {r['g_fric']:10.2e} {r['g_normal']:8.2e} {r['cg']:3d} {r['cg_res']:7.1e}"
+              f" {int(r['lagged_ok'])}")
+
+
+def main(argv):
+    kind = argv.pop(0)
+    n = int(argv.pop(0)) if kind == "drop" else 0
+    frames = int(argv.pop(0))
+    iters = set()
+    while "--iters" in argv:
+        i = argv.index("--iters")
+        iters.add(int(argv[i + 1]))
+        del argv[i:i + 2]
+    nofric = "--nofric" in argv
+    argv = [a for a in argv if a != "--nofric"]
+    ov = dict(a.split("=", 1) for a in argv)
+    sim, c, cl, bodies = build(kind, n, ov, nofric)
+    b = solver_data(sim)
+    P = b.behavior.params
+    cap, tol = P.contact_newton_iterations, P.newton_tolerance
+    print(f"{kind} {n or ''} implicit, overrides {ov}, cap {cap}, tol {tol}"
+          f"{', no friction' if nofric else ''}")
+    print(" frame strain%  self  pen  vmax  vnear newton  cg  subs capped(step/lag) halv  cpu_ms")
+    for f in range(1, frames + 1):
+        b.data.trace = []
+        t0 = time.process_time()
+        st = sim.step_frame()
+        cpu = time.process_time() - t0
+        r = frame_row(kind, sim, c, cl, bodies, st, cpu, b.data.trace, cap, tol)
+        print(f" {f:5d} {100 * r['strain']:7.2f} {r['self']:5d} {r['pen']:4d} {r['vmax']:5.3f}"
+              f" {r['vnear']:5.3f} {r['newton']:6d} {r['cg']:5d} {r['subs']:4d}"
+              f" {r['capped']:4d}({r['by_step']}/{r['by_lag']}) {r['halvings']:5d}"
+              f" {1e3 * cpu:7.0f}", flush=True)
+        if f in iters:
+            for k, s in enumerate(substeps_of(b.data.trace)):
+                print(f"  frame {f} substep {k + 1}")
+                print_iters(s)
+    b.data.trace = None
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
