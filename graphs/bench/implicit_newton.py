@@ -99,15 +99,22 @@ def frame_row(kind, sim, c, cl, bodies, st, cpu, trace, cap, tol):
                 halvings=int(st.get("line_search_halvings", 0)))
 
 
-def print_iters(trace):
+def print_iters(trace, brief=False):
+    if brief:
+        print("   it    |dx|m/s  alpha  +in -out      |g|   |g_fric| |g_norm|  cg")
+        for r in trace:
+            print(f"  {r['it']:3d} {r['dx']:10.3e} {r['alpha']:6.3g} {r['enter']:4d}"
+                  f" {r['leave']:4d} {r['g']:8.2e} {r['g_fric']:10.2e} {r['g_normal']:8.2e}"
+                  f" {r['cg']:3d}")
+        return
     print("   it    |dx|m/s  alpha         E0-E1     E2-E1       dl_N      top_N     dgap_m"
-          "   live active  +in -out      |g|   |g_fric| |g_norm|  cg  cg_res lag_ok")
+          "   live active  +in -out      |g|   |g_fric| |g_norm|  cg  cg_res lag_ok  over(rows)  p99")
     for r in trace:
         print(f"  {r['it']:3d} {r['dx']:10.3e} {r['alpha']:6.3g} {r['E0'] - r['E1']:13.4e}"
               f" {r['E2'] - r['E1']:9.2e} {r['dl']:10.3e} {r['top']:10.3e} {r['dgap']:10.3e}"
               f" {r['live']:6d} {r['active']:6d} {r['enter']:4d} {r['leave']:4d}"
               f" {r['g']:8.2e} {r['g_fric']:10.2e} {r['g_normal']:8.2e} {r['cg']:3d} {r['cg_res']:7.1e}"
-              f" {int(r['lagged_ok'])}")
+              f" {int(r['lagged_ok'])} {r['n_over']:6d}({r['n_over_rows']:5d}) {r['p99']:8.2e}")
 
 
 def main(argv):
@@ -120,7 +127,8 @@ def main(argv):
         iters.add(int(argv[i + 1]))
         del argv[i:i + 2]
     nofric = "--nofric" in argv
-    argv = [a for a in argv if a != "--nofric"]
+    brief = "--brief" in argv
+    argv = [a for a in argv if a not in ("--nofric", "--brief")]
     ov = dict(a.split("=", 1) for a in argv)
     sim, c, cl, bodies = build(kind, n, ov, nofric)
     b = solver_data(sim)
@@ -142,7 +150,9 @@ def main(argv):
         if f in iters:
             for k, s in enumerate(substeps_of(b.data.trace)):
                 print(f"  frame {f} substep {k + 1}")
-                print_iters(s)
+                print_iters(s, brief)
+                if brief:
+                    break
     b.data.trace = None
 
 

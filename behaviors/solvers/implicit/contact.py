@@ -447,6 +447,32 @@ def start_targets_on(x, rows, nrm, target, coef, out, sel, on):
 @njit(cache=True)
 def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, grad, A, diag,
                irls, reach, xf, nofric, sel):
+    """``row_energy_coupled`` with the block-diagonal Hessian (``coupled`` False)."""
+    z = np.zeros(1, dtype=np.int32)
+    return row_energy_coupled(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode,
+                              grad, A, diag, irls, reach, xf, nofric, sel, z, z, False,
+                              np.zeros(rows.shape[0], dtype=np.uint8))
+
+
+@njit(cache=True, inline="always")
+def _block_at(indptr, indices, a, b):
+    """The index of block (a, b) in a BSR pattern with sorted column indices; -1 if absent."""
+    lo, hi = indptr[a], indptr[a + 1]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        c = indices[mid]
+        if c < b:
+            lo = mid + 1
+        elif c > b:
+            hi = mid
+        else:
+            return mid
+    return -1
+
+
+@njit(cache=True)
+def row_energy_coupled(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, grad, A,
+                       diag, irls, reach, xf, nofric, sel, indptr, indices, coupled, hot):
     """Penalty + lagged friction energy of the contact rows at x (see above); gradient and
     block-diagonal Hessian as ``contact_energy``. With mode 2 a row not active at x but within
     ``reach`` [m] of its target (0 <= C < reach) still writes its penalty block k n n^T: the
@@ -456,7 +482,21 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
     displacement in the row's tangential motion u is the fixed ``xf - x0`` (their animation's
     step), and the friction term adds no gradient or Hessian to them (the penalty does).
     Only the rows listed in ``sel`` are visited (the live rows of ``lag_rows_live`` /
-    ``extend_live``: every other row is inactive here, adding nothing), in its order."""
+    ``extend_live``: every other row is inactive here, adding nothing), in its order.
+
+    With ``coupled`` (``contact_hessian: coupled``) the Hessian is the row's whole
+    Gauss-Newton block c c^T (x) (k n n^T) + c_f c_f^T (x) friction block (c_f: c with 0 at
+    ``nofric`` vertices) wherever the BSR pattern (``indptr``, ``indices``) holds the block of
+    a pair of the row's free vertices (cloth against a kinematic body: the cloth vertices of a
+    row share a triangle or an edge); a pair the pattern lacks (self contact between distant
+    vertices) puts |c_a c_b| times its block on both diagonals instead, which bounds the
+    dropped off-diagonal pair from above (+-(E_ab + E_ba) <= E_aa + E_bb): a PSD majorizer of
+    the row's curvature. The block-diagonal Hessian (False) is neither: it drops the
+    off-diagonal blocks, which under-estimates a cloth triangle's curvature against a
+    kinematic vertex by up to 3x along a common motion of its vertices (sum b^2 >= 1/3).
+    A row flagged in ``hot`` (uint8 per row; ``contact_sticky``: active at an earlier Newton
+    iterate of the substep) writes its penalty curvature even where inactive, as a row within
+    ``reach`` does."""
     g = np.zeros(3)
     u = np.zeros(3)
     blk = np.zeros((3, 3))
@@ -485,7 +525,8 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
                     for q in range(3):
                         blk[p, q] = k * nrm[r, p] * nrm[r, q]
             have = True
-        elif mode >= 2 and C < reach:  # inactive but near: its curvature in the Newton model
+        elif mode >= 2 and (C < reach or hot[r]):  # inactive but near (or active at an
+            # earlier Newton iterate, ``hot``): its curvature in the Newton model
             for p in range(3):
                 for q in range(3):
                     blk[p, q] = k * nrm[r, p] * nrm[r, q]
@@ -528,6 +569,30 @@ def row_energy(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, mode, gr
                 for p in range(3):
                     for q in range(3):
                         A[b, p, q] += cj * cj * (blk[p, q] + fr * blf[p, q])
+                if coupled:
+                    for l in range(j + 1, 4):
+                        e = rows[r, l]
+                        cl = coef[r, l]
+                        if fixed[e] or cl == 0.0:
+                            continue
+                        ff = fr * (0.0 if nofric[e] else 1.0)
+                        w = cj * cl
+                        bo = _block_at(indptr, indices, a, e)
+                        if bo >= 0:
+                            bt = _block_at(indptr, indices, e, a)
+                            for p in range(3):
+                                for q in range(3):
+                                    t = w * (blk[p, q] + ff * blf[p, q])
+                                    A[bo, p, q] += t
+                                    A[bt, p, q] += t
+                        else:  # the pattern lacks (a, e): majorize on the diagonals
+                            w = abs(w)
+                            b2 = diag[e]
+                            for p in range(3):
+                                for q in range(3):
+                                    t = w * (blk[p, q] + ff * blf[p, q])
+                                    A[b, p, q] += t
+                                    A[b2, p, q] += t
     return E
 
 

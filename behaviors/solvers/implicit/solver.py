@@ -173,8 +173,8 @@ from lokigraph.errors import InputError
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
 from .contact import (contact_energy_al, extend_live, lag_contacts_al, lag_rows, lag_rows_live,
-                      lag_rows_sel, row_energy, row_residuals, safety_project, start_targets_on,
-                      update_contact_multipliers)
+                      lag_rows_sel, row_energy, row_energy_coupled, row_residuals,
+                      safety_project, start_targets_on, update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, limit_energy, scatter_blocks
 from .compliant import compliant_edges, shape_energy
 from .linear import BlockJacobi, Identity, SmoothedAggregation, invert_blocks
@@ -289,6 +289,19 @@ class ImplicitParams(Params):
         "solve (analytic colliders or contact rows; newton_iterations otherwise). Measured on "
         "a 16x16 inextensible cloth dropped on a sphere mesh at 1 substep: max edge strain 11 % "
         "at 8, 1.7 % at 20.")
+    contact_hessian: Literal["diagonal", "coupled"] = Field(
+        "diagonal", description="Newton-matrix blocks of the contact rows of the collision "
+        "pipeline (mesh_contact: energy): 'diagonal' the 3x3 diagonal block c_a^2 (k n n^T + "
+        "friction block) of each free vertex of a row only; 'coupled' also the off-diagonal "
+        "blocks c_a c_b (...) between a row's vertices wherever the Hessian pattern holds them "
+        "(cloth against a kinematic body: the row's cloth vertices share a triangle or edge), "
+        "a diagonal majorizer for the pairs it lacks (contact.row_energy_coupled).")
+    contact_sticky: bool = Field(
+        False, description="Contact rows of the collision pipeline that were active (normal "
+        "force > 0) at any Newton iterate of the substep keep their penalty curvature k n n^T "
+        "in the Newton matrix where inactive (energy and gradient unchanged), as contact_reach "
+        "gives it to every row near its target: a row that the steps open and close in turn "
+        "(graphs/bench/implicit_newton.py) is seen by the model on both sides.")
     contact_stiffness: float = Field(1e4, gt=0, description="Contact penalty per vertex as a "
                                      "multiple of its inertia m / h^2 [-] (shape_contact: "
                                      "energy).")
@@ -793,11 +806,14 @@ class ImplicitSolver(Behavior):
             g1 = grad if mode >= 1 else d.rows["g1"]
             A1 = d.A.data if mode >= 2 else d.rows["A1"]
             irls = self.params.friction_hessian == "irls"
+            coupled = self.params.contact_hessian == "coupled"
             eps = self.params.friction_velocity * h
-            for rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf, _mk, sel, ns in d.rows["sets"]:
-                E += row_energy(x, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef, kr, lam, mu,
-                                eps, mode, g1, A1, d.diag, irls, self.params.contact_reach,
-                                xt, d.compliant, sel[:ns[0]])
+            for (rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf, _mk, sel, ns), hot in zip(
+                    d.rows["sets"], d.rows["hot"]):
+                E += row_energy_coupled(x, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef,
+                                        kr, lam, mu, eps, mode, g1, A1, d.diag, irls,
+                                        self.params.contact_reach, xt, d.compliant,
+                                        sel[:ns[0]], d.A.indptr, d.A.indices, coupled, hot)
         if d.shapes is not None:
             C = d.contact
             E += contact_energy_al(x, d.work["x0"], d.cur_fixed, *d.shapes, C["kc"], C["mult"],
@@ -926,6 +942,8 @@ class ImplicitSolver(Behavior):
         """This substep's contact rows (CollisionDetect's packed sets) as views of grow-only
         buffers: coefficients, stiffness, lagged normal forces."""
         d.rows["sets"] = []
+        d.rows["hot"] = []  # per set: the rows' contact_sticky flags (uint8)
+        d.rows.setdefault("hotbuf", {})
         if not d.mesh:
             return
         c = ctx.state.fields.get("contacts")
@@ -954,6 +972,13 @@ class ImplicitSolver(Behavior):
             d.rows["sets"].append((rows, nrm, tgt_solve, mu, buf[0][:m], buf[1][:m],
                                    buf[2][:m], buf[3][:m], kind == "vf", buf[5][:m],
                                    buf[6][:m], buf[7]))
+            hot = d.rows["hotbuf"].get(kind)
+            if hot is None or hot.shape[0] < m:
+                hot = d.rows["hotbuf"][kind] = np.zeros(buf[0].shape[0], np.uint8)
+            hot = hot[:m]
+            if self.params.contact_sticky:  # rows new every substep: none active yet
+                hot[:] = 0
+            d.rows["hot"].append(hot)
 
     def _lag_rows(self, ctx, d, x, live=False, on_segment=False):
         """Lag coefficients and normal forces of the contact rows at x; returns
@@ -995,6 +1020,10 @@ class ImplicitSolver(Behavior):
                 top = max(top, float(lam.max()))
                 dgap = max(dgap, _change_over_stiffness(dlam, kr))
         d.rows["active"] = act
+        if self.params.contact_sticky:  # the rows active at x keep their curvature
+            for st, hot in zip(d.rows["sets"], d.rows["hot"]):
+                sel = st[10][:st[11][0]]
+                hot[sel[st[6][sel] > 0.0]] = 1
         return act, dl, top, dgap
 
     def _extend_live(self, ctx, d, xb, x):
@@ -1214,11 +1243,19 @@ class ImplicitSolver(Behavior):
             leave += int(np.count_nonzero(a0 & ~a1))
             live += int(st[11][0])
         E2 = self._potential(ctx, d, x, 0, opts, xt, None)  # with the rows lagged at x
+        sp = np.sqrt(np.einsum("ij,ij->i", d.work["dx"], d.work["dx"])) / ctx.dt
+        tol = self.params.newton_tolerance
+        inrow = np.zeros(len(x), dtype=bool)  # vertices of the live rows
+        for st in d.rows.get("sets", []):
+            inrow[st[0][st[10][:st[11][0]]].ravel()] = True
+        over = sp > tol
         d.trace.append(dict(it=it_n, dx=full, alpha=alpha, E0=E0, E1=E1, E2=E2, dl=dl, top=top,
                             dgap=dgap, live=live, active=int(d.rows.get("active", 0)),
                             enter=enter, leave=leave, g=tr0["g"], g_fric=tr0["g_fric"],
                             g_normal=tr0["g_normal"], lagged_ok=lagged_ok, cg=cg[0],
-                            cg_res=cg[1],
+                            cg_res=cg[1], n_over=int(over.sum()),
+                            n_over_rows=int((over & inrow).sum()),
+                            p99=float(np.percentile(sp[~d.cur_fixed], 99)) if len(sp) else 0.0,
                             dt=ctx.dt))
 
     def _project(self, ctx, d, p):

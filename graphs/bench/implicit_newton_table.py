@@ -1,0 +1,86 @@
+"""Before/after table of the Newton-at-contact settings (issue #11), interleaved in one process:
+every setting's simulation steps one frame in turn (the order rotated each frame, ABBA-like), so
+that the shared machine's load falls on all of them alike.
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_newton_table.py drop 64 10
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_newton_table.py elbow 60
+
+Settings (implicit_solver overrides): ``base`` (the defaults), ``coupled`` (contact_hessian:
+coupled), ``sticky`` (coupled + contact_sticky), ``irls`` (coupled + contact_sticky +
+friction_hessian: irls); ``--only a,b`` picks some. Per setting: CPU and wall ms per frame
+(mean over frames 2..), Newton and CG iterations per frame, line-search halvings per frame, the
+worst edge strain [%], the most intersecting pairs in a frame (cloth self + cloth-body), and for
+the elbow the largest cloth speed within 0.15 m of the joint from frame 4
+(tests/test_elbow.py's crease bound 0.73 m/s) and Newton iterations per substep over the
+frames at rest (50..).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import implicit_newton as N  # noqa: E402
+
+SETTINGS = {
+    "base": {},
+    "coupled": {"contact_hessian": "coupled"},
+    "sticky": {"contact_hessian": "coupled", "contact_sticky": "true"},
+    "irls": {"contact_hessian": "coupled", "contact_sticky": "true",
+             "friction_hessian": "irls"},
+}
+
+
+def main(argv):
+    kind = argv.pop(0)
+    n = int(argv.pop(0)) if kind == "drop" else 0
+    frames = int(argv.pop(0))
+    names = list(SETTINGS)
+    if "--only" in argv:
+        i = argv.index("--only")
+        names = argv[i + 1].split(",")
+        del argv[i:i + 2]
+    sims = {k: N.build(kind, n, SETTINGS[k]) for k in names}
+    acc = {k: [] for k in names}
+    for f in range(1, frames + 1):
+        order = names if f % 2 else names[::-1]
+        for k in order:
+            sim, c, cl, bodies = sims[k]
+            t0, w0 = time.process_time(), time.perf_counter()
+            st = sim.step_frame()
+            cpu, wall = time.process_time() - t0, time.perf_counter() - w0
+            r = N.frame_row(kind, sim, c, cl, bodies, st, cpu, [], 10**9, 0.0)
+            r["wall"] = wall
+            r["substeps"] = c.model.substeps
+            acc[k].append(r)
+        print(f"frame {f}: " + ", ".join(
+            f"{k} {1e3 * acc[k][-1]['cpu']:.0f} ms N {acc[k][-1]['newton']} CG "
+            f"{acc[k][-1]['cg']} strain {100 * acc[k][-1]['strain']:.2f} % pairs "
+            f"{acc[k][-1]['self'] + acc[k][-1]['pen']} vnear {acc[k][-1]['vnear']:.3f}"
+            for k in names), flush=True)
+    print(f"\n{kind} {n or ''}, {frames} frames, means over frames 2..{frames}")
+    print("| setting | CPU ms/frame | wall ms/frame | Newton/frame | CG/frame | halvings/frame |"
+          " max strain % | max pairs | near-joint m/s | Newton/substep at rest |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    base = None
+    for k in names:
+        rs = acc[k][1:]
+        cpu = np.mean([r["cpu"] for r in rs])
+        base = cpu if base is None else base
+        rest = [r["newton"] / r["substeps"] for r in acc[k][49:]]
+        print(f"| {k} | {1e3 * cpu:.0f} ({cpu / base:.2f}x) | "
+              f"{1e3 * np.mean([r['wall'] for r in rs]):.0f} | "
+              f"{np.mean([r['newton'] for r in rs]):.1f} | {np.mean([r['cg'] for r in rs]):.0f} |"
+              f" {np.mean([r['halvings'] for r in rs]):.0f} |"
+              f" {100 * max(r['strain'] for r in acc[k]):.2f} |"
+              f" {max(r['self'] + r['pen'] for r in acc[k])} |"
+              f" {max(r['vnear'] for r in acc[k][3:]) if kind != 'drop' else '-'} |"
+              f" {np.mean(rest) if rest else '-'} |")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
