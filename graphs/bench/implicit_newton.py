@@ -101,11 +101,13 @@ def frame_row(kind, sim, c, cl, bodies, st, cpu, trace, cap, tol):
 
 def print_iters(trace, brief=False):
     if brief:
-        print("   it    |dx|m/s  alpha  +in -out      |g|   |g_fric| |g_norm|  cg")
+        print("   it    |dx|m/s  alpha  +in -out      |g|   |g_fric| |g_norm|  cg |"
+              " full step dE: model    actual   penalty  friction      rest")
         for r in trace:
             print(f"  {r['it']:3d} {r['dx']:10.3e} {r['alpha']:6.3g} {r['enter']:4d}"
                   f" {r['leave']:4d} {r['g']:8.2e} {r['g_fric']:10.2e} {r['g_normal']:8.2e}"
-                  f" {r['cg']:3d}")
+                  f" {r['cg']:3d} | {r['dE_pred']:18.2e} {r['dE_full']:9.2e}"
+                  f" {r['dE_pen']:9.2e} {r['dE_fric']:9.2e} {r['dE_rest']:9.2e}")
         return
     print("   it    |dx|m/s  alpha         E0-E1     E2-E1       dl_N      top_N     dgap_m"
           "   live active  +in -out      |g|   |g_fric| |g_norm|  cg  cg_res lag_ok  over(rows)  p99")

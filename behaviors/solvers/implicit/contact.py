@@ -657,3 +657,24 @@ def row_residuals(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, xf, n
             if over > cone:
                 cone = over
     return normal, cone
+
+
+@njit(cache=True)
+def mark_closing(x, rows, nrm, target, coef, kr, sel, hot):
+    """``contact_sticky``: flag in ``hot`` the rows listed in ``sel`` whose gap (coefficients
+    as lagged) is negative at x (the full Newton step's end, before the line search cuts it),
+    so that the next Newton matrix holds their curvature although the cut step left them
+    open. Returns the number of rows newly flagged."""
+    new = 0
+    for i in range(sel.shape[0]):
+        r = sel[i]
+        if hot[r] or kr[r] <= 0.0:
+            continue
+        C = -target[r]
+        for j in range(4):
+            a = rows[r, j]
+            C += coef[r, j] * (x[a, 0] * nrm[r, 0] + x[a, 1] * nrm[r, 1] + x[a, 2] * nrm[r, 2])
+        if C < 0.0:
+            hot[r] = 1
+            new += 1
+    return new

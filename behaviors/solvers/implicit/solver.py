@@ -173,7 +173,7 @@ from lokigraph.errors import InputError
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
 from .contact import (contact_energy_al, extend_live, lag_contacts_al, lag_rows, lag_rows_live,
-                      lag_rows_sel, row_energy, row_energy_coupled, row_residuals,
+                      lag_rows_sel, mark_closing, row_energy, row_energy_coupled, row_residuals,
                       safety_project, start_targets_on, update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, limit_energy, scatter_blocks
 from .compliant import compliant_edges, shape_energy
@@ -296,12 +296,20 @@ class ImplicitParams(Params):
         "blocks c_a c_b (...) between a row's vertices wherever the Hessian pattern holds them "
         "(cloth against a kinematic body: the row's cloth vertices share a triangle or edge), "
         "a diagonal majorizer for the pairs it lacks (contact.row_energy_coupled).")
+    contact_lag_iterations: int = Field(
+        0, ge=0, description="Contact rows of the collision pipeline: their closest-point "
+        "coefficients and lagged normal forces (friction) are taken again after each of the "
+        "first contact_lag_iterations - 1 Newton iterations of a substep and then frozen, so "
+        "that the later iterations minimise one fixed energy (0: re-lagged after every "
+        "iteration).")
     contact_sticky: bool = Field(
         False, description="Contact rows of the collision pipeline that were active (normal "
         "force > 0) at any Newton iterate of the substep keep their penalty curvature k n n^T "
         "in the Newton matrix where inactive (energy and gradient unchanged), as contact_reach "
         "gives it to every row near its target: a row that the steps open and close in turn "
-        "(graphs/bench/implicit_newton.py) is seen by the model on both sides.")
+        "(graphs/bench/implicit_newton.py) is seen by the model on both sides; so do the rows "
+        "that a full Newton step closes (``contact.mark_closing``) before the line search "
+        "cuts it short of them.")
     contact_stiffness: float = Field(1e4, gt=0, description="Contact penalty per vertex as a "
                                      "multiple of its inertia m / h^2 [-] (shape_contact: "
                                      "energy).")
@@ -1171,6 +1179,10 @@ class ImplicitSolver(Behavior):
                 if d.rows.get("sets"):  # rows that the segment xs -> xs + dx may close
                     self._extend_live(ctx, d, xtry, xs)
                     on_segment = True
+                    if P.contact_sticky:  # rows the full step closes: curvature from now on
+                        for st, hot in zip(d.rows["sets"], d.rows["hot"]):
+                            mark_closing(xtry, st[0], st[1], st[2], st[4], st[5],
+                                         st[10][:st[11][0]], hot)
                 slack = 1e-12 * abs(E0)  # rounding of E near convergence
                 for _ in range(30):
                     E1 = self._potential(ctx, d, xtry, 0, opts, xt, None)
@@ -1201,7 +1213,8 @@ class ImplicitSolver(Behavior):
                 if top > 0.0:
                     lagged_ok = (float(np.abs(C["lam"] - C["lam_prev"]).max())
                                  <= P.contact_tolerance * top)
-            if d.rows.get("sets"):
+            if d.rows.get("sets") and (P.contact_lag_iterations == 0
+                                       or it_n < P.contact_lag_iterations):
                 act, dl, top, dgap = self._lag_rows(ctx, d, xs, live=True,
                                                     on_segment=on_segment)
                 if top > 0.0 and dl > P.contact_tolerance * top and dgap > gap_tol:
@@ -1242,6 +1255,29 @@ class ImplicitSolver(Behavior):
             enter += int(np.count_nonzero(a1 & ~a0))
             leave += int(np.count_nonzero(a0 & ~a1))
             live += int(st[11][0])
+        # the full Newton step's energy change by parts (rows lagged as in the step's model):
+        # the contact rows' penalty and friction, the rest (inertia + elastic), and the
+        # quadratic model's prediction g.dx + dx.A dx / 2
+        dxs = d.work["dx"]
+        xb = x - alpha * dxs
+        parts = {}
+        for key, xe in (("b", xb), ("f", xb + dxs)):
+            pen = fr = 0.0
+            eps = self.params.friction_velocity * ctx.dt
+            for rows, nrm, tgt, mu, coef, kr, lam, _lp, _vf, _mk, sel, ns in d.rows.get("sets",
+                                                                                        []):
+                e_all = row_energy(xe, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef, kr, lam,
+                                   mu, eps, 0, d.rows["g1"], d.rows["A1"], d.diag, False, 0.0,
+                                   xt, d.compliant, sel[:ns[0]])
+                e_pen = row_energy(xe, d.work["x0"], d.cur_fixed, rows, nrm, tgt, coef, kr, lam,
+                                   0.0 * mu, eps, 0, d.rows["g1"], d.rows["A1"], d.diag, False,
+                                   0.0, xt, d.compliant, sel[:ns[0]])
+                pen += e_pen
+                fr += e_all - e_pen
+            parts[key] = (self._potential(ctx, d, xe, 0, opts, xt, None), pen, fr)
+        Adx = (d.A @ dxs.reshape(-1)).reshape(-1, 3)
+        pred = float(np.vdot(d.work["g"], dxs)) + 0.5 * float(np.vdot(dxs, Adx))
+        dE = [parts["f"][i] - parts["b"][i] for i in range(3)]
         E2 = self._potential(ctx, d, x, 0, opts, xt, None)  # with the rows lagged at x
         sp = np.sqrt(np.einsum("ij,ij->i", d.work["dx"], d.work["dx"])) / ctx.dt
         tol = self.params.newton_tolerance
@@ -1253,7 +1289,9 @@ class ImplicitSolver(Behavior):
                             dgap=dgap, live=live, active=int(d.rows.get("active", 0)),
                             enter=enter, leave=leave, g=tr0["g"], g_fric=tr0["g_fric"],
                             g_normal=tr0["g_normal"], lagged_ok=lagged_ok, cg=cg[0],
-                            cg_res=cg[1], n_over=int(over.sum()),
+                            cg_res=cg[1], n_over=int(over.sum()), dE_full=dE[0],
+                            dE_pen=dE[1], dE_fric=dE[2], dE_rest=dE[0] - dE[1] - dE[2],
+                            dE_pred=pred,
                             n_over_rows=int((over & inrow).sum()),
                             p99=float(np.percentile(sp[~d.cur_fixed], 99)) if len(sp) else 0.0,
                             dt=ctx.dt))
