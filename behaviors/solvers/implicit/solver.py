@@ -296,12 +296,6 @@ class ImplicitParams(Params):
         "blocks c_a c_b (...) between a row's vertices wherever the Hessian pattern holds them "
         "(cloth against a kinematic body: the row's cloth vertices share a triangle or edge), "
         "a diagonal majorizer for the pairs it lacks (contact.row_energy_coupled).")
-    contact_lag_iterations: int = Field(
-        0, ge=0, description="Contact rows of the collision pipeline: their closest-point "
-        "coefficients and lagged normal forces (friction) are taken again after each of the "
-        "first contact_lag_iterations - 1 Newton iterations of a substep and then frozen, so "
-        "that the later iterations minimise one fixed energy (0: re-lagged after every "
-        "iteration).")
     contact_sticky: bool = Field(
         False, description="Contact rows of the collision pipeline that were active (normal "
         "force > 0) at any Newton iterate of the substep keep their penalty curvature k n n^T "
@@ -1213,8 +1207,7 @@ class ImplicitSolver(Behavior):
                 if top > 0.0:
                     lagged_ok = (float(np.abs(C["lam"] - C["lam_prev"]).max())
                                  <= P.contact_tolerance * top)
-            if d.rows.get("sets") and (P.contact_lag_iterations == 0
-                                       or it_n < P.contact_lag_iterations):
+            if d.rows.get("sets"):
                 act, dl, top, dgap = self._lag_rows(ctx, d, xs, live=True,
                                                     on_segment=on_segment)
                 if top > 0.0 and dl > P.contact_tolerance * top and dgap > gap_tol:
