@@ -139,12 +139,14 @@ def print_iters(trace, brief=False):
                   f" {r['dE_pen']:9.2e} {r['dE_fric']:9.2e} {r['dE_rest']:9.2e}")
         return
     print("   it    |dx|m/s  alpha         E0-E1     E2-E1       dl_N      top_N     dgap_m"
-          "   live active  +in -out      |g|   |g_fric| |g_norm|  cg  cg_res lag_ok  over(rows)  p99")
+          "   live active  +in -out      |g|   |g_fric| |g_norm|  cg  cg_res lag_ok"
+          "  over(rows)  p99")
     for r in trace:
         print(f"  {r['it']:3d} {r['dx']:10.3e} {r['alpha']:6.3g} {r['E0'] - r['E1']:13.4e}"
               f" {r['E2'] - r['E1']:9.2e} {r['dl']:10.3e} {r['top']:10.3e} {r['dgap']:10.3e}"
               f" {r['live']:6d} {r['active']:6d} {r['enter']:4d} {r['leave']:4d}"
-              f" {r['g']:8.2e} {r['g_fric']:10.2e} {r['g_normal']:8.2e} {r['cg']:3d} {r['cg_res']:7.1e}"
+              f" {r['g']:8.2e} {r['g_fric']:10.2e} {r['g_normal']:8.2e} {r['cg']:3d}"
+              f" {r['cg_res']:7.1e}"
               f" {int(r['lagged_ok'])} {r['n_over']:6d}({r['n_over_rows']:5d}) {r['p99']:8.2e}")
 
 

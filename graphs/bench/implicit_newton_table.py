@@ -19,18 +19,22 @@ Measured (1 thread, the shared machine, wall 2-2.5x CPU; means over frames 2..; 
 pairs in every frame of every run; Newton at its cap of 20 in every contact substep of the
 drops with each setting):
 
-    scene           setting  CPU ms/frame  Newton/frame  CG/frame  halvings  strain %  near-joint m/s  Newton/substep at rest
-    drop 64 (10)    base     1,555 (1.00)  11.6          3,597     23        4.45      -               -
-                    coupled  1,487 (0.96)  11.6          3,327     18        3.05
-                    sticky   1,464 (0.94)  11.6          3,137     11        2.10
-                    irls     1,388 (0.89)  11.6          2,917     11        2.49
-    drop 128 (10)   base     8,798 (1.00)  11.6          4,720     19        3.57
-                    sticky   9,264 (1.05)  11.6          4,227     10        3.03
-                    irls     9,631 (1.09)  11.6          4,187      8        2.80
-    sleeve_elbow    base       937 (1.00)  80.0         15,533    125        -         0.897           20.0
-    (60, 4 subst.)  coupled    925 (0.99)  79.9         14,388    127                  0.948           19.8
-                    sticky     887 (0.95)  80.0         12,788     96                  0.871           20.0
-                    irls       801 (0.85)  77.4         11,249     16                  0.783           16.5
+    scene (frames)   setting  CPU ms/frame  Newton  CG/frame  halv.  strain %  near m/s  N/sub rest
+    drop 64 (10)     base     1,555 (1.00)  11.6     3,597    23    4.45      -         -
+                     coupled  1,487 (0.96)  11.6     3,327    18    3.05
+                     sticky   1,464 (0.94)  11.6     3,137    11    2.10
+                     irls     1,388 (0.89)  11.6     2,917    11    2.49
+    drop 128 (10)    base     8,798 (1.00)  11.6     4,720    19    3.57
+                     sticky   9,264 (1.05)  11.6     4,227    10    3.03
+                     irls     9,631 (1.09)  11.6     4,187     8    2.80
+    sleeve_elbow     base       937 (1.00)  80.0    15,533   125    -         0.897     20.0
+    (60, 4 substeps) coupled    925 (0.99)  79.9    14,388   127              0.948     19.8
+                     sticky     887 (0.95)  80.0    12,788    96              0.871     20.0
+                     irls       801 (0.85)  77.4    11,249    16              0.783     16.5
+
+(Newton: Newton iterations per frame; halv.: line-search halvings per frame; near: the
+largest speed within 0.15 m of the joint, bound 0.73 m/s; N/sub rest: Newton iterations per
+substep over frames 50-60.)
 """
 
 from __future__ import annotations
@@ -81,8 +85,9 @@ def main(argv):
             f"{acc[k][-1]['self'] + acc[k][-1]['pen']} vnear {acc[k][-1]['vnear']:.3f}"
             for k in names), flush=True)
     print(f"\n{kind} {n or ''}, {frames} frames, means over frames 2..{frames}")
-    print("| setting | CPU ms/frame | wall ms/frame | Newton/frame | CG/frame | halvings/frame |"
-          " max strain % | max pairs | near-joint m/s | Newton/substep at rest |")
+    print("| setting | CPU ms/frame | wall ms/frame | Newton/frame | CG/frame |"
+          " halvings/frame | max strain % | max pairs | near-joint m/s |"
+          " Newton/substep at rest |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     base = None
     for k in names:
