@@ -49,6 +49,70 @@ iterations per frame, worst strain, 0 intersecting pairs in every frame of every
     drape_128         (frames 2-5) fixed 16,114 / 11,729 / 1.40 %; max 0.5: 7,577 / 2,507 /
                       1.43 %; nucleus 498 / 1.72 %
 
+The forcing term's gates (issue #11: the forcing term as the default), ``cg_forcing_after``
+(a solve at cg_tolerance for its first N CG iterations, the Eisenstat-Walker tolerance only
+after them) and ``cg_forcing_scope: contacts`` (the forcing term only in substeps with
+contacts in the solve):
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_speedups.py --table \
+        --scenes cloth_sphere_64 cloth_sphere_128 drape_64 --frames 10 --settings defaults \
+        ew5:cg_forcing=eisenstat_walker,cg_forcing_max=0.5 \
+        g25c:cg_forcing=eisenstat_walker,cg_forcing_max=0.5,cg_forcing_after=25,cg_forcing_scope=contacts \
+        g50a:cg_forcing=eisenstat_walker,cg_forcing_max=0.5,cg_forcing_after=50,cg_forcing_scope=all
+
+    (CPU ms/frame, wall ms/frame, CPU ratio to the defaults, Newton / CG iterations per
+    frame, worst edge strain, frames 2-10 interleaved, 1 thread, machine at load ~5; 0
+    intersecting pairs in every frame of every run)
+    cloth_sphere_64   defaults 1,659 / 4,221 / 1.000 / 11.6 / 3,597 / 4.45 %
+                      ew5      692 / 1,676 / 0.417 / 11.6 / 235 / 3.08 %
+                      g25c     763 / 1,924 / 0.460 / 11.6 / 281 / 4.00 %
+                      g50a     1,076 / 2,615 / 0.648 / 11.6 / 555 / 3.68 %
+    cloth_sphere_128  defaults 9,482 / 22,724 / 1.000 / 11.6 / 4,720 / 3.57 %
+                      ew5      2,214 / 5,501 / 0.233 / 11.6 / 286 / 3.07 %
+                      g25c     1,949 / 4,680 / 0.206 / 11.6 / 285 / 5.49 % (over 5 %)
+                      g50a     3,373 / 8,376 / 0.356 / 11.6 / 561 / 7.35 % (over 5 %)
+    drape_64          defaults 2,828 / 7,743 / 1.000 / 30.9 / 9,419 / 0.26 %
+                      ew5      1,903 / 5,044 / 0.673 / 32.0 / 1,957 / 0.26 %
+                      g25c     bitwise the defaults (no contacts): 2,915 / 7,994 / 1.031
+                      g50a     2,166 / 5,595 / 0.766 / 31.3 / 2,841 / 0.26 %
+    drape_128         (no contacts: g25c is bitwise the defaults; not rerun here)
+    At 128 x 128 the gates keep the ungated saving (0.21x) but the worst strain of the drop
+    reaches 5.49 % (g25c) and 7.35 % (g50a) against the issue's 5 % bound: Newton stops at its
+    cap in every contact substep with each setting, where the strain moves both ways with the
+    tolerance (ungated 3.07 %, fixed 3.57 %; max 0.1 above 7.01 %). Neither is a default.
+
+Why the gates: without contacts Newton converges, and a loose solve costs it iterations under
+its cap. graphs/bench/catenary.yaml at 1 substep (72 frames): 7 Newton iterations a substep at
+the fixed tolerance, 0.0003 mm from the exact catenary at rest (bound 1 mm); measured with
+exploratory code that is not committed, each at the cap of 8 in (nearly) every substep: plain
+eisenstat_walker 108.5 mm, its first iteration of a substep at cg_tolerance 0.12 mm (574 of 576
+iterations), EW choice 2 on the preconditioned gradient norm (g.P^-1 g, CG stopping on r.z)
+88.5 mm, EW choice 1 (the linear model's agreement, safeguard eta^1.618) 78.3 mm, a CG stop on
+the relative energy-norm error of the step (Hestenes-Stiefel sums over 5 iterations) at 0.1 /
+0.03 22.0 / 5.2 mm (at 0.01: 7 iterations a substep, 0.0001 mm, but 26,867 CG iterations
+against 28,120 and cloth_sphere_64 at 0.81x CPU), the gate after 25 with scope all 19.1 mm
+(after 50: 0.0006 mm, 7 iterations). With contacts Newton stops at its cap whatever the
+tolerance, and the small solves of the pinch (<= 22 CG iterations in frame 2) stay tight under
+the gate after 25 (its Newton counts are the fixed tolerance's through frame 26, where the plain
+forcing term took 10.5 a substep against the bound 6, measured before this change). A rate
+predictor (loose for the rest of a substep once the last two Newton steps' ratio predicts no
+convergence within the cap) was measured and not kept: the pinch's 7 Newton iterations in frame
+2 (bound 6) and 18 intersecting pairs on the implicit sleeve_pinch.
+
+g25c as the default (eisenstat_walker, max 0.5, after 25, scope contacts, swapped in by a local
+edit of the defaults), ``python -m pytest -q -m "slow or not slow" tests/test_implicit*.py
+tests/test_fluid*.py tests/test_rod_twist.py tests/test_cloth_strain.py``: 3 failed, 136 passed
+(8.6 min). Of the 9 tests the plain eisenstat_walker failed, the catenary, the elastica, the pin
+statistics, the contact complementarity, the pinch's Newton counts, the thrown cloth's momentum
+and the fluid coupling iterations pass; the three failures are comparisons whose figures were
+measured at the fixed tolerance, no physical bound: test_cut_step_is_not_convergence (the old
+line_search_step test's false stops: 0 of the >= 2 frames), test_hard_limit_holds_a_32x32_drop
+(its control, the penalty alone without hard_limit, reaches 2.03 % instead of > 3.5 %; with the
+limit 2.12 %, bound 2.5 %) and test_compliant_unknowns_block_preconditioner (cg_identity 32,360
+against 5x block's 10,182 CG iterations: the loose tolerance stops the unpreconditioned solves
+early). Pinning cg_forcing: fixed in those three comparisons is a decision for their owners; the
+gated forcing term stays opt-in here.
+
 Where the 128 x 128 impact frame goes (frames 6-10 at 1 substep, 1 thread, defaults; cProfile
 of frames 2-10 and per-iteration logs at frame 8): Newton at its 20 cap in every contact
 substep, CG at its 500 cap in 19 of 20 iterations (relative residual 1e-3 .. 4e-2, 0.8 ms per
