@@ -255,6 +255,23 @@ class StrainLimitParams(ConstraintParams):
         "the step costs 472 ms on cloth_on_sphere (11.40 %, another run), so the sweeps halve "
         "the step's own cost (613 -> 298 ms in that run). Not a default: 1.5x the defaults' "
         "CPU, the target was 1.3x.")
+    global_chord: int = Field(
+        0, ge=0, le=100, description="With global_contacts 'rows' and global_pivots: up to "
+        "this many passes after a factorised one re-solve its active set (edges and contact "
+        "rows) with its factor, J and the right-hand side at the current positions (chord "
+        "Newton; rows gone under their limit held, not pulled back), while each pass leaves "
+        "at most global_chord_rate of the worst excess before it; 0 = every pass factorised "
+        "(the step before, bitwise).")
+    global_chord_rate: float = Field(
+        0.5, ge=0, le=1.0, description="A chord pass (global_chord) is taken only when the "
+        "pass before it left at most this fraction of the worst excess [-]; otherwise the "
+        "pass is factorised.")
+    global_fast_lu: bool = Field(
+        False, description="With global_contacts 'rows' and global_pivots: the step's "
+        "SuperLU factorisations with small supernodes (relax 1, panel_size 1; on "
+        "cloth_on_sphere's frame-9 systems 8.2 -> 5.7 ms a factorisation at the same fill, "
+        "strain_limit_global.py, GlobalStrainStep._splu); false = the factorisations before, "
+        "bitwise.")
     global_alpha: float = Field(
         1e-3, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
         "step's system, relative to its diagonal [-]. An inextensible triangle mesh has about "
@@ -363,7 +380,8 @@ class StrainLimitConstraint(ConstraintBehavior):
                     else self.params.global_tolerance), self.params.global_near,
                    self.params.global_alpha, self.params.global_contacts,
                    self.params.global_pivots, self.params.global_update,
-                   self.params.global_smooth)
+                   self.params.global_smooth, self.params.global_chord,
+                   self.params.global_chord_rate, self.params.global_fast_lu)
         ctx.stats["max_global_strain_passes"] = max(ctx.stats.get("max_global_strain_passes", 0),
                                                     d.glob.stats["passes"] - n0)
 
