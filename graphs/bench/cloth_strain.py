@@ -350,6 +350,97 @@ def girth(frames, extras, rings=(8, 9, 10, 16)):
                   + f" | {inside_arm(q, sleeve, arm)} |", flush=True)
 
 
+_NEAR = []
+
+
+def _part_distances(P, arm):
+    """Distance [m] of each point P to each arm piece (brute force over its triangles)."""
+    if not _NEAR:
+        _NEAR.append(_near_kernel())
+    near = _NEAR[0]
+    out = np.zeros((len(P), len(arm)))
+    for k, (V, F) in enumerate(arm):
+        col = np.zeros(len(P))
+        near(np.ascontiguousarray(P), np.ascontiguousarray(V),
+             np.ascontiguousarray(F, dtype=np.int64), col)
+        out[:, k] = col
+    return out
+
+
+def _near_kernel():
+    from numba import njit
+
+    from lokigraph.behaviors.collision.narrowphase import _pt_tri_sq
+
+    @njit
+    def near(P, V, F, out):
+        for i in range(P.shape[0]):
+            best = np.inf
+            for t in range(F.shape[0]):
+                a, b, c = F[t, 0], F[t, 1], F[t, 2]
+                d2 = _pt_tri_sq(P[i, 0], P[i, 1], P[i, 2], V[a, 0], V[a, 1], V[a, 2],
+                                V[b, 0], V[b, 1], V[b, 2], V[c, 0], V[c, 1], V[c, 2])[0]
+                best = min(best, d2)
+            out[i] = np.sqrt(best)
+
+    return near
+
+
+#: sleeve_elbow: a vertex within this distance [m] of an arm piece touches it (collision
+#: distance 4 mm plus 2 mm)
+TOUCH = 0.006
+
+
+def where(frames, extras, over=0.02):
+    """sleeve_elbow, per frame and --set (interleaved): the worst sleeve edge (its ring,
+    position around the ring -- 0 deg at +y, the inner elbow, 90 deg at +z, the top --, kind:
+    ring / axial / diagonal), the arm pieces its vertices touch (within ``TOUCH``: u upper arm,
+    f forearm, e elbow cap), the edges over ``over`` (count, rings spanned, how many have a
+    vertex touching two pieces: pinched), and the girth the arm forces on the worst ring
+    (``ring_girth``)."""
+    names = "ufe"
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = []
+        for ex in extras or [{}]:
+            lbl = " ".join(f"{k}={v}" for p in ex.values() for k, v in p.items()) or "defaults"
+            runs.append(_Run(lbl, _variant(_scene_path("sleeve_elbow"), ex, Path(tmp))))
+        X = runs[0].sim.state.particle_q.copy()
+        sleeve = sleeve_parts(runs[0].sim)[0]
+        off = sleeve.vertex_offset
+        E = runs[0].d.idx
+        keep = (E[:, 0] >= off) & (E[:, 0] < off + sleeve.vertex_count)
+        E, rest = E[keep], runs[0].d.rest[keep]
+        ra, rb = (E[:, 0] - off) // SLEEVE_AROUND, (E[:, 1] - off) // SLEEVE_AROUND
+        aa, ab = (E[:, 0] - off) % SLEEVE_AROUND, (E[:, 1] - off) % SLEEVE_AROUND
+        kind = np.where(ra == rb, "ring", np.where(aa == ab, "axial", "diagonal"))
+        print("| frame | setting | worst % | ring (x cm) | around deg | kind | touches | "
+              f"edges > {100 * over:.0f} % | their rings | pinched | ring girth % / forced % |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for k in range(frames):
+            for r in runs:
+                r.step()
+                q = r.sim.state.particle_q
+                _, arm = sleeve_parts(r.sim)
+                e = np.linalg.norm(q[E[:, 1]] - q[E[:, 0]], axis=1) / rest - 1.0
+                j = int(e.argmax())
+                hot = np.flatnonzero(e > over)
+                vs = np.unique(np.concatenate([E[hot].ravel(), E[j]]))
+                dist = _part_distances(q[vs], arm)
+                touch = {v: "".join(names[i] for i in np.flatnonzero(dd < TOUCH))
+                         for v, dd in zip(vs, dist)}
+                pinched = sum(1 for h in hot if max(len(touch[E[h, 0]]), len(touch[E[h, 1]])) > 1)
+                ring = min(ra[j], rb[j])
+                ang = 360.0 * 0.5 * (aa[j] + ab[j] + (SLEEVE_AROUND if abs(aa[j] - ab[j]) > 1
+                                                      else 0)) / SLEEVE_AROUND % 360
+                g, _, forced = ring_girth(q, X, sleeve, arm, ring)
+                rings = (f"{min(ra[hot].min(), rb[hot].min())}-{max(ra[hot].max(), rb[hot].max())}"
+                         if len(hot) else "-")
+                print(f"| {k + 1} | {r.label} | {100 * e[j]:.1f} | {ring} "
+                      f"({100 * X[off + ring * SLEEVE_AROUND, 0]:.0f}) | {ang:.0f} | {kind[j]} | "
+                      f"{touch[E[j, 0]] or '-'} / {touch[E[j, 1]] or '-'} | {len(hot)} | {rings} | "
+                      f"{pinched} | {100 * g:+.1f} / {100 * forced:+.1f} |", flush=True)
+
+
 def global_passes(name, frames, extras):
     """The global strain-limit step's passes per frame, each --set in turn (interleaved), and
     the worst relative excess over the limit after each pass (see the module doc)."""
@@ -417,6 +508,8 @@ def main(argv=None):
                     "and the excess after each pass, for each --set")
     ap.add_argument("--girth", action="store_true", help="sleeve_elbow: ring girths against "
                     "the girth the arm forces, per frame")
+    ap.add_argument("--where", action="store_true", help="sleeve_elbow: where the worst edge "
+                    "is, what it touches, the edges over 2 %%, per frame and --set")
     args = ap.parse_args(argv)
     extras = [_parse_set(x) for x in args.set]
     if args.stages:
@@ -425,6 +518,8 @@ def main(argv=None):
         global_passes(args.passes, args.frames, extras)
     elif args.girth:
         girth(args.frames, extras)
+    elif args.where:
+        where(args.frames, extras)
     elif args.peer:
         peer(args.peer, args.frames, args.only)
     else:
