@@ -259,9 +259,26 @@ class StrainLimitParams(ConstraintParams):
         0, ge=0, le=100, description="With global_contacts 'rows' and global_pivots: up to "
         "this many passes after a factorised one re-solve its active set (edges and contact "
         "rows) with its factor, J and the right-hand side at the current positions (chord "
-        "Newton; rows gone under their limit held, not pulled back), while each pass leaves "
-        "at most global_chord_rate of the worst excess before it; 0 = every pass factorised "
-        "(the step before, bitwise).")
+        "Newton; rows gone under their limit held, not pulled back; a contact row's C from "
+        "the factorised pass's contact plane), while each pass leaves at most "
+        "global_chord_rate of the worst excess before it; 0 = every pass factorised (the step "
+        "before, bitwise). A chord pass leaves about 0.85 of the excess against 0.55 for a "
+        "factorised one, at a fifth of its cost. Measured on cloth_on_sphere with A + S "
+        "(global_smooth's setting) and global_fast_lu, frames 8-14 (graphs/bench/"
+        "cloth_strain.py --passes, one interleaved run): the step 224 -> 173 ms a frame at 3 "
+        "and rate 0.8 (67 passes against 44; worst 1.48 against 1.49 %); rate 0.5 seldom "
+        "takes one. With global_near 0.005 too (B = A + S + global_fast_lu + global_chord 3 + "
+        "global_chord_rate 0.8 + global_near 0.005), 24 frames, NUMBA_NUM_THREADS=1, CPU per "
+        "frame over the second half: cloth_on_sphere defaults 429 ms (6.63 %), A + S 643 ms "
+        "(1.50x, 1.50 %), B 552 ms (1.29x, 1.50 %); another run with the defaults and B "
+        "twice each: 400 / 406 ms, A + S 619 ms (1.54x), B 542 / 567 ms (1.38x); skirt_walk "
+        "1.41 % at the defaults' CPU; sleeve_elbow 33.5 % (defaults 23.9 %, A + S 37.9 %) at "
+        "325 ms (defaults 295 ms): cloth_strain.py --where. Not a default: 1.3-1.4x the "
+        "defaults' CPU, and with B as the defaults (one run of the default suite, 24 Nov) 6 "
+        "of 843 tests failed: test_bench's pruned and unpruned graphs are no longer bitwise "
+        "equal (1e-8 m apart), test_strain_limit_global's filter drape goes to 2.9 % with the "
+        "other global defaults of B (its 1.5 % bound), and four tests pin the old defaults "
+        "(the 5 % limit, the baselines of the tolerance / smooth / chord comparisons).")
     global_chord_rate: float = Field(
         0.5, ge=0, le=1.0, description="A chord pass (global_chord) is taken only when the "
         "pass before it left at most this fraction of the worst excess [-]; otherwise the "
@@ -270,8 +287,9 @@ class StrainLimitParams(ConstraintParams):
         False, description="With global_contacts 'rows' and global_pivots: the step's "
         "SuperLU factorisations with small supernodes (relax 1, panel_size 1; on "
         "cloth_on_sphere's frame-9 systems 8.2 -> 5.7 ms a factorisation at the same fill, "
-        "strain_limit_global.py, GlobalStrainStep._splu); false = the factorisations before, "
-        "bitwise.")
+        "strain_limit_global.py, GlobalStrainStep._splu; the step over frames 8-14 330 -> "
+        "224 ms a frame with A + S, graphs/bench/cloth_strain.py --passes, one interleaved "
+        "run); false = the factorisations before, bitwise.")
     global_alpha: float = Field(
         1e-3, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
         "step's system, relative to its diagonal [-]. An inextensible triangle mesh has about "
