@@ -54,6 +54,21 @@ distance, the smallest over planes tilted up to 40 degrees from the ring's own p
 the ring's rest girth; in the ring's plane the part of the section inside the ring, in a tilted
 one the part within 1.2 ring radii of the centre), and the sleeve
 vertices inside the arm (winding number).
+
+``--where``: sleeve_elbow, per frame and --set, where the worst edge is and what it touches.
+Measured (30 frames; defaults, A + S, B of strain_limit.py's global_chord): with the 1 % limit
+the sleeve holds 1.1-1.4 % to frame 12; from frame 13 the worst edge is a ring edge of ring 8-9
+(1 cm before to 2.5 cm past the joint) on the inner elbow (8-68 deg from +y), its vertices
+touching both the upper arm and the forearm (pinched in the closing crease) while the arm does
+not force the ring (its girth -8.6 .. -1.3 % of the ring's rest girth to frame 21); from
+frame 22 to 28 the arm forces +0.2 .. +4.9 % on ring 9, which no setting can hold under 2 %
+without crossing the arm. The edges over 2 % stay in rings 5-14 (12-63 edges) with the 1 %
+limit, all rings (150-333 edges) at the defaults' 5 %, which share the forced girth: the
+defaults' worst is 23.9 %, A + S 37.9 %, B 33.5 % (ring girth +8.7 % against +2.8-3.2 %
+forced at frame 24). What holds it is the joint passes, not the global step: B with
+inextensible_joint_iterations 40 7.92 % over 26 frames (10: 21.6 %; 3: 33.5 %; B with
+global_passes 40 at tolerance 1e-3 19.5 % over 21 frames, as B), at 1.46x the defaults' CPU
+there and 1.99x on cloth_on_sphere (1.49 %).
 """
 
 from __future__ import annotations
