@@ -181,6 +181,120 @@ def install_breakdown():
             setattr(C, attr, w)
 
 
+_STAGE = ["other"]  # --stages: the collision stage being run (first / iter / final / ccd)
+
+
+def install_stages(n_cloth: int):
+    """``--stages``: CPU per collision stage and per part of it, per frame, in ``_PROF`` as
+    ``s_STAGE.PART`` [s] (and ``c_STAGE.PART`` calls). Stages: ``first`` (the substep's
+    detection, ``CollisionDetect.step``), ``iter`` (``CollisionConstraint.project``: the contact
+    passes of the iterations, re-detections included), ``final`` (the final rounds: their
+    detections and passes), ``ccd`` (the safe step). Parts: ``boxes`` (primitive and
+    space-time boxes), ``broad`` (the column grid's / trees' queries), ``order`` (the Z-order
+    sort), ``filter_vf`` / ``filter_ee`` (the narrow filters), ``pack``, ``cull``, ``pass``
+    (``_project_contacts``; ``full`` counts the passes over every row), ``ccd_hits``.
+    ``r_STAGE.{vf,ee}_{self,ball}`` sum the rows of the stage's detections (cloth-cloth / with a
+    vertex of index >= ``n_cloth``: the collider); their counting is left out of the parts
+    but is in the frame's CPU (``s_count`` says how much)."""
+    from lokigraph.behaviors.collision import broadphase as bp
+    from lokigraph.behaviors.collision import contacts as C
+
+    if getattr(C, "__stages_installed__", False):
+        return
+    C.__stages_installed__ = True
+
+    def timed(mod, attr, part, after=None):
+        fn = getattr(mod, attr)
+
+        def w(*a, **k):
+            c0 = time.process_time()
+            try:
+                return fn(*a, **k)
+            finally:
+                key = f"{_STAGE[0]}.{part}"
+                _PROF["s_" + key] = _PROF.get("s_" + key, 0.0) + time.process_time() - c0
+                _PROF["c_" + key] = _PROF.get("c_" + key, 0) + 1
+                if after is not None:
+                    c1 = time.process_time()
+                    after(*a)
+                    _PROF["s_count"] = _PROF.get("s_count", 0.0) + time.process_time() - c1
+        setattr(mod, attr, w)
+
+    def staged(cls, attr, stage):
+        fn = getattr(cls, attr)
+
+        def w(*a, **k):
+            keep = _STAGE[0]
+            _STAGE[0] = stage
+            c0 = time.process_time()
+            try:
+                return fn(*a, **k)
+            finally:
+                _PROF["s_" + stage] = _PROF.get("s_" + stage, 0.0) + time.process_time() - c0
+                _STAGE[0] = keep
+        setattr(cls, attr, w)
+
+    def count_rows(d, *_):
+        for kind in ("vf", "ee"):
+            rows = getattr(d, kind)
+            ball = int(np.count_nonzero((rows >= n_cloth).any(axis=1))) if len(rows) else 0
+            for nm, v in (("self", len(rows) - ball), ("ball", ball)):
+                key = f"r_{_STAGE[0]}.{kind}_{nm}"
+                _PROF[key] = _PROF.get(key, 0) + v
+        _PROF[f"c_{_STAGE[0]}.detect"] = _PROF.get(f"c_{_STAGE[0]}.detect", 0) + 1
+
+    seen = {}  # full passes of each contacts object counted so far
+
+    def full_pass(c, *_):
+        key = f"c_{_STAGE[0]}.full"
+        _PROF[key] = _PROF.get(key, 0) + c.full_passes - seen.get(id(c), 0)
+        seen[id(c)] = c.full_passes
+
+    for attr in ("primitive_boxes", "spacetime_prim_boxes", "spacetime_boxes"):
+        timed(bp, attr, "boxes")
+    for attr in ("column_query_pairs", "column_query_self", "query_pairs", "query_self",
+                 "build_bvh"):
+        timed(bp, attr, "broad")
+    timed(C, "_ordered", "order")
+    timed(C, "_filter_vf", "filter_vf")
+    timed(C, "_filter_ee", "filter_ee")
+    timed(C, "_vertex_normals", "filter_ee")
+    timed(C, "_pack", "pack", after=lambda d, *_: count_rows(d))
+    timed(C, "_cull", "cull")
+    timed(C, "_project_contacts", "pass", after=full_pass)
+    timed(C, "_ccd_hits", "ccd_hits")
+    staged(C.CollisionDetect, "step", "first")
+    staged(C.CollisionConstraint, "project", "iter")
+    staged(C.CollisionConstraint, "finalize", "final")
+    staged(C.CollisionConstraint, "after_finalize", "ccd")
+
+
+def stages_table(rows, n_cloth: int, frames=None) -> str:
+    """``--stages``: per run, CPU ms per frame of every stage and part (mean over ``frames``,
+    default 2..N) and the rows per cloth vertex of the stages' detections (summed over the
+    frame's detections of that stage, divided by the detections)."""
+    keys = sorted({k for r in rows for v in r["per_frame"] for k in v
+                   if k.startswith(("s_", "r_", "c_"))})
+    lines = ["| key | " + " | ".join(r["setting"] for r in rows) + " |",
+             "|" + "---|" * (len(rows) + 1)]
+    for k in ["cpu_ms"] + keys:
+        cells = []
+        for r in rows:
+            pf = r["per_frame"][1:] if frames is None else [r["per_frame"][f - 1] for f in frames
+                                                            if f <= len(r["per_frame"])]
+            vals = [v.get(k, 0) for v in pf]
+            m = float(np.mean(vals)) if vals else float("nan")
+            if k.startswith("s_"):
+                cells.append(f"{1e3 * m:.0f}")
+            elif k.startswith("r_"):
+                det = [v.get("c_" + k[2:].split(".")[0] + ".detect", 0) for v in pf]
+                cells.append(f"{np.sum(vals) / max(np.sum(det), 1) / n_cloth:.1f}")
+            else:
+                cells.append(f"{m:.1f}")
+        lines.append(f"| {k} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 class LokiRun:
     """One lokigraph setting, stepped frame by frame (its PenetrationCheck left out of the
     timed frame; the shared counter runs outside)."""
@@ -646,6 +760,12 @@ def main(argv=None):
     ap.add_argument("--breakdown", action="store_true",
                     help="time the collision functions per frame (detect, project, ccd; "
                          "see install_breakdown) and print a per-frame table")
+    ap.add_argument("--stages", action="store_true",
+                    help="CPU per collision stage (first detection, iterations, final rounds, "
+                         "ccd) and part (boxes, broad, filters, pack, cull, passes) and rows per "
+                         "cloth vertex per detection (see install_stages), per run; "
+                         "--stage-frames A B: the frames averaged (default 2..N)")
+    ap.add_argument("--stage-frames", type=int, nargs=2, default=None, metavar=("FIRST", "LAST"))
     ap.add_argument("--rows-vs-speed", action="store_true",
                     help="only: contact rows of one detection of the flat 128 x 128 cloth "
                          "translated rigidly at 0-4 m/s, swept vs space-time boxes (see "
@@ -708,6 +828,8 @@ def main(argv=None):
             runs += [LokiRun(sc, *st[:2], label=f" {sc.path.stem} {name}",
                              threads=st[2] if len(st) > 2 else None, flags={name: True})
                      for st in loki for sc in scenes[1:]]
+        if args.stages:
+            install_stages(len(scenes[0].cloth_q0))
         rows = run_interleaved(runs, frames)
         for r in rows:  # CPU per frame against the static scene at the same setting
             base = next((b for b in rows if b["setting"].split(" ")[0] ==
@@ -719,6 +841,11 @@ def main(argv=None):
         all_rows += rows
         print()
         print(per_frame_table(rows))
+        if args.stages:
+            sf = range(args.stage_frames[0], args.stage_frames[1] + 1) if args.stage_frames \
+                else None
+            print()
+            print(stages_table(rows, len(scenes[0].cloth_q0), sf))
     else:
         for n in args.sizes:
             sc = ClothSphere(SCENES[n])
