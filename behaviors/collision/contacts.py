@@ -156,6 +156,12 @@ SPACETIME_CROSS = True
 #: intersecting pair and no vertex inside in any frame either way, largest strain 93.4 ->
 #: 90.3 %: not within 1.5x even so, and unsafe (above)
 SPACETIME_PREDICTED = False
+#: [m] extra box inflation of ``SPACETIME_PREDICTED``'s space-time detection over the predicted
+#: motion (used only while that flag is on; 0: as before). The space-time rows then also hold
+#: the pairs whose relative deviation from the predicted motion stays within about twice this
+#: (measured on the moving scene's iterates with ``peer_collision.py --rows-at-iterate --slack
+#: 0.0015``: no cloth-cloth pair within its target missing in four substeps)
+PREDICTED_SLACK = 0.0
 #: space-time boxes in the detection over the predicted motion x -> x1 made exact by a check:
 #: the rows of ``CollisionDetect`` (self pairs and, as ``SPACETIME_CROSS``, pairs of two
 #: elements) come from space-time boxes inflated by ``RELATIVE_SLACK`` [m] more, and before
@@ -511,8 +517,9 @@ class CollisionDetect(Behavior):
             d.rel_ref = x1
         else:
             d.rel_ref = None
-            tolerant = _detect_all(d, x, x1, st.particle_qd, h,
-                                   SPACETIME and SPACETIME_PREDICTED)
+            pred = SPACETIME and SPACETIME_PREDICTED
+            tolerant = _detect_all(d, x, x1, st.particle_qd, h, pred,
+                                   PREDICTED_SLACK if pred else 0.0)
         d.tolerant_count = tolerant
         ctx.stats["contacts_vf"] = ctx.stats.get("contacts_vf", 0) + len(d.vf)
         ctx.stats["contacts_ee"] = ctx.stats.get("contacts_ee", 0) + len(d.ee)
@@ -2061,6 +2068,153 @@ def _max_move(a, b):
     return np.sqrt(m)
 
 
+#: the safe step's first check, when the rows of the last final round no longer cover the
+#: motion x -> p (``_rows_cover``: some vertex moved more than infl_min - d_max / 2 since their
+#: detection), first tries the rows of that detection plus those of an incremental query (the
+#: primitives of the vertices that moved that far against every primitive, the same boxes
+#: and space-time test as a detection over x -> p, ``_ccd_incremental``): when these give no
+#: hit, a full detection gives none either (a pair of two primitives that moved less is held
+#: by the old rows, one with a primitive that moved more by the new, with the same row), so the
+#: safe step ends as it would have; when they give a hit (or more than ``CCD_INCREMENTAL``
+#: of the vertices moved that far, or a group remembers sides of a two-sided kinematic
+#: element, which a filter pass updates) the full detection runs as before. Positions bitwise
+#: those with 0 (off). Measured on the moving scene (cloth_sphere_moving_128, frames 7-10):
+#: 5-35 of the 16,641 cloth vertices moved that far in the final rounds' last passes (the
+#: sphere's friction drags them), so the full detection of every such substep (1-2 a frame,
+#: ~300 ms each) became a query of a few dozen primitives. Measured and not kept with it: the
+#: column grid of those space-time detections over loose boxes in the frame of the group's
+#: mean motion (exact, the same rows: a pair that passes the space-time test has overlapping
+#: loose boxes [lo0 + min(0, dlo - T), hi0 + max(0, dhi - T)] in every frame T), then the
+#: swept-box test: the spinning sphere drags the cloth's parts in different directions, so
+#: the mean motion (2, -19, 3 mm in frame 9) shrinks no box, and the loose boxes are larger
+#: than the swept ones (grid queries 102 + 168 -> 117 + 206 ms on that detection; whole run
+#: 1.02x, bitwise equal)
+CCD_INCREMENTAL = 0.02
+
+
+def _ccd_incremental(c, work, x, p, v, h, frac):
+    """The safe step's first hits from the rows of the last detection (over x -> c.det_ref)
+    and the rows of the pairs with a primitive of a vertex that moved more than infl_min -
+    d_max / 2 since (see ``CCD_INCREMENTAL``): True when they give no hit, None when the full
+    detection must run (a hit, too many such vertices, side memory)."""
+    ref = c.det_ref
+    if ref is None or ref.shape != p.shape:
+        return None
+    for g in c.groups:
+        if (g.recover & ~g.one_sided).any():
+            return None  # its filter pass updates the side memory: detect in full
+    _set_infl_min(c)
+    d_max = 0.0
+    for t in (c.vf_target, c.ee_target):
+        if len(t):
+            d_max = max(d_max, frac * float(t.max()))
+    for g in c.groups:  # the new rows' targets are at most their thicknesses' sum
+        if len(g.verts):
+            d_max = max(d_max, 2.0 * frac * float(np.maximum(g.th_out, g.th_in)[g.verts].max()))
+    buf = _scratch(c.groups[0], "ccd_moved", (len(p),), np.bool_) if c.groups else None
+    moved = _moved_mask(ref, p, c.infl_min - 0.5 * d_max,
+                        np.empty(len(p), np.bool_) if buf is None else buf)
+    nm = int(np.count_nonzero(moved))
+    if nm > CCD_INCREMENTAL * sum(len(g.verts) for g in c.groups):
+        return None
+    for rows, nrm, tgt, is_vf in ((c.vf, c.vf_n, c.vf_target, True),
+                                  (c.ee, c.ee_n, c.ee_target, False)):
+        if len(_ccd_hits(work, rows, nrm, tgt, is_vf, x, p, frac)[0]):
+            return None
+    if nm == 0:
+        return True
+    for g in c.groups:
+        for rows, nrm, tgt, is_vf in _incremental_rows(g, moved, x, p, v, h):
+            if len(rows) and len(_ccd_hits(work, rows, nrm, tgt, is_vf, x, p, frac)[0]):
+                return None
+    return True
+
+
+@njit(cache=True)
+def _moved_mask(ref, p, lim, out):
+    """out[i] = vertex i is farther than ``lim`` [m] from ``ref``; returns ``out``."""
+    lim2 = lim * lim
+    for i in range(p.shape[0]):
+        out[i] = ((p[i, 0] - ref[i, 0]) ** 2 + (p[i, 1] - ref[i, 1]) ** 2
+                  + (p[i, 2] - ref[i, 2]) ** 2) > lim2
+    return out
+
+
+def _incremental_rows(g, moved, x, p, v, h):
+    """Rows (rows, normals, targets, is_vf) of group ``g`` over x -> p (space-time, as the
+    safe step's detection) of every pair with a primitive that has a ``moved`` vertex: the
+    moved vertices against every triangle, the other vertices against the triangles with a
+    moved vertex, the edges with a moved vertex against every edge (each pair once). The
+    filters see the same candidates as in a full detection (minus the rest), so each row is
+    the one that detection would give."""
+    out = []
+    infl = _infl(g)
+    st_on = SPACETIME
+    if g.do_vf and len(g.tris):
+        vm = moved[g.verts]
+        tm = moved[g.tris].any(axis=1)
+        iv, it = np.flatnonzero(vm), np.flatnonzero(tm)
+        ev = g.vert_elem[g.verts]
+        cands = []
+        for a_idx, b_idx, drop_moved_a in ((iv, np.arange(len(g.tris)), False),
+                                           (np.flatnonzero(~vm), it, True)):
+            if not len(a_idx) or not len(b_idx):
+                continue
+            va, tb = g.verts[a_idx], g.tris[b_idx]
+            lo_a, hi_a = bp.primitive_boxes(x, va, p, infl)
+            lo_b, hi_b = bp.primitive_boxes(x, tb, p, infl)
+            sa = sb = None
+            if st_on:
+                sa = bp.spacetime_prim_boxes(x, va, p, infl, ~g.kinematic_el[ev[a_idx]],
+                                             _st_group(g, ev, True)[a_idx])
+                sb = bp.spacetime_prim_boxes(x, tb, p, infl,
+                                             ~g.kinematic_el[g.tri_elem[b_idx]],
+                                             _st_group(g, g.tri_elem, True)[b_idx])
+            cand = bp.column_query_pairs(lo_a, hi_a, lo_b, hi_b, va, tb, st_a=sa, st_b=sb)
+            if len(cand):
+                cands.append(np.stack([a_idx[cand[:, 0]], b_idx[cand[:, 1]]], axis=1))
+        if cands:
+            cand = np.ascontiguousarray(np.concatenate(cands))
+            n = len(cand)
+            rows, nrm, tgt, mu, one = (np.empty((n, 4), np.int64), np.empty((n, 3)),
+                                       np.empty(n), np.empty(n), np.empty(n, np.bool_))
+            k, _ = _filter_vf(cand, g.verts, g.tris, g.tri_elem, g.vert_elem, g.allow,
+                              g.tolerant, g.th_out, g.th_in, g.friction, g.visible, g.setmask,
+                              g.one_sided, x, v, h, g.restitution, g.margin, rows, nrm, tgt,
+                              mu, one, g.recover, g.side_mem, g.side_seen, g.crossed,
+                              g.stamp + 1, g.near_d, g.near_s)
+            out.append((rows[:k], nrm[:k], tgt[:k], True))
+    if g.do_ee and len(g.edges):
+        em = moved[g.edges].any(axis=1)
+        ie = np.flatnonzero(em)
+        if len(ie):
+            ea = g.edges[ie]
+            lo_a, hi_a = bp.primitive_boxes(x, ea, p, infl)
+            lo_b, hi_b = bp.primitive_boxes(x, g.edges, p, infl)
+            sa = sb = None
+            if st_on:
+                lab = _st_group(g, g.edge_elem, True)
+                act = ~g.kinematic_el[g.edge_elem]
+                sa = bp.spacetime_prim_boxes(x, ea, p, infl, act[ie], lab[ie])
+                sb = bp.spacetime_prim_boxes(x, g.edges, p, infl, act, lab)
+            cand = bp.column_query_pairs(lo_a, hi_a, lo_b, hi_b, ea, g.edges, st_a=sa, st_b=sb)
+            if len(cand):
+                i, j = ie[cand[:, 0]], cand[:, 1]
+                keep = ~em[j] | (i < j)  # a pair of two moved edges once
+                cand = np.ascontiguousarray(np.stack([np.minimum(i, j), np.maximum(i, j)],
+                                                     axis=1)[keep])
+                n = len(cand)
+                vn = _vertex_normals(x, g) if g.one_sided.any() else np.zeros((0, 3))
+                rows, nrm, tgt, mu = (np.empty((n, 4), np.int64), np.empty((n, 3)),
+                                      np.empty(n), np.empty(n))
+                k, _ = _filter_ee(cand, g.edges, g.edge_elem, g.allow, g.tolerant, g.th_out,
+                                  g.friction, g.visible, g.setmask, g.one_sided, x, v, h,
+                                  g.restitution, g.margin, rows, nrm, tgt, mu, vn, g.crossed,
+                                  g.stamp + 1)
+                out.append((rows[:k], nrm[:k], tgt[:k], False))
+    return out
+
+
 def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=None):
     """The final safe step of a substep (see the section comment): CCD of the motion x -> p,
     ``rounds`` rounds of contacts at the time of impact, then impact zones. Modifies ``p``;
@@ -2080,6 +2234,10 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
         he = _ccd_hits(work, c.ee, c.ee_n, c.ee_target, False, x, p, frac)
         return hv, he
 
+    if not _rows_cover(c, x, p, frac) and CCD_INCREMENTAL > 0.0 \
+            and _ccd_incremental(c, work, x, p, v, h, frac):
+        st["ccd_incremental"] = st.get("ccd_incremental", 0) + 1
+        return st  # no hit: a full detection would find none either
     hv, he = hits(not _rows_cover(c, x, p, frac))
     st["ccd_hits"] = st.get("ccd_hits", 0) + len(hv[0]) + len(he[0])
     for _ in range(rounds):

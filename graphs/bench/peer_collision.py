@@ -731,6 +731,18 @@ def per_frame_table(rows) -> str:
     return "\n".join(lines)
 
 
+def _flags(spec: str) -> dict:
+    """``--moving-flag`` spec ``NAME`` (True) or ``NAME=VALUE[,NAME=VALUE...]`` (Python
+    literals) -> contacts module globals."""
+    import ast
+
+    out = {}
+    for part in spec.split(","):
+        k, _, v = part.partition("=")
+        out[k] = ast.literal_eval(v) if v else True
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128], choices=sorted(SCENES))
@@ -756,7 +768,8 @@ def main(argv=None):
     ap.add_argument("--moving-flag", nargs="+", default=None, metavar="NAME",
                     help="with --moving: the moving scenes again, each with the boolean "
                          "contacts.NAME set True around its steps only (e.g. "
-                         "SPACETIME_PREDICTED), in the same interleaved run")
+                         "SPACETIME_PREDICTED; NAME=VALUE,NAME=VALUE sets those values), in "
+                         "the same interleaved run")
     ap.add_argument("--breakdown", action="store_true",
                     help="time the collision functions per frame (detect, project, ccd; "
                          "see install_breakdown) and print a per-frame table")
@@ -826,7 +839,7 @@ def main(argv=None):
                         threads=st[2] if len(st) > 2 else None) for st in loki for sc in scenes]
         for name in args.moving_flag or ():  # the moving scenes again with a contacts flag on
             runs += [LokiRun(sc, *st[:2], label=f" {sc.path.stem} {name}",
-                             threads=st[2] if len(st) > 2 else None, flags={name: True})
+                             threads=st[2] if len(st) > 2 else None, flags=_flags(name))
                      for st in loki for sc in scenes[1:]]
         if args.stages:
             install_stages(len(scenes[0].cloth_q0))
