@@ -340,15 +340,11 @@ def test_zsort_pairs_is_the_z_order_of_the_ranks():
 
 
 @pytest.mark.parametrize("kind", ["cloth", "soup"])
-@pytest.mark.parametrize("threads", [1, 2])
-def test_gathered_sweep_and_dealt_slots_give_the_same_rows(monkeypatch, kind, threads):
-    """``COLUMN_GATHERED`` (int8 flags, the entries' vertices gathered for the shared-vertex
-    test), ``COLUMN_DEAL`` (slots taken one at a time) and ``COLUMN_RADIX`` (the fill order
-    from a radix sort): the rows and their order of the
-    sweep without them, self and two-set queries, with and without space-time boxes and
-    primitives, on one and two threads."""
-    if threads > numba.config.NUMBA_NUM_THREADS:
-        pytest.skip("numba has one thread")
+def test_sweep_rows_match_the_references_at_one_and_two_threads(kind):
+    """The sweep on the gathered vertices and flags, self and two-set queries, with and without
+    primitives and space-time boxes, a big box among them: every query's rows are distinct and
+    their set is the brute force's (the trees' with space-time boxes); 1 and 2 threads give the
+    same rows in the same order."""
     X0, X1, _, F = make_mesh(kind, 4)
     E = bp.mesh_edges(F)
     V = np.arange(len(X0))
@@ -359,9 +355,11 @@ def test_gathered_sweep_and_dealt_slots_give_the_same_rows(monkeypatch, kind, th
     lo_f, hi_f = bp.primitive_boxes(X0, F, X1, thick)
     lo_f[2] -= 1.0  # a big box
     g = rng.integers(0, 3, len(E))
-    se = bp.spacetime_prim_boxes(X0, E, X1, thick, rng.random(len(E)) > 0.5, g)
-    sv = bp.spacetime_prim_boxes(X0, V, X1, thick, None, np.zeros(len(V), np.int64))
-    sf = bp.spacetime_prim_boxes(X0, F, X1, thick, None, np.zeros(len(F), np.int64))
+    a = rng.random(len(E)) > 0.5
+    se = bp.spacetime_prim_boxes(X0, E, X1, thick, a, g)
+    gv, gf = np.zeros(len(V), np.int64), np.zeros(len(F), np.int64)
+    sv = bp.spacetime_prim_boxes(X0, V, X1, thick, None, gv)
+    sf = bp.spacetime_prim_boxes(X0, F, X1, thick, None, gf)
 
     def queries():
         return [bp.column_query_self(lo_e, hi_e, E).copy(),
@@ -372,25 +370,30 @@ def test_gathered_sweep_and_dealt_slots_give_the_same_rows(monkeypatch, kind, th
                 bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, V, F, out=bp.PairBuffer(),
                                       st_a=sv, st_b=sf).copy()]
 
+    every_e = {r for r in brute_cross(lo_e, hi_e, lo_e, hi_e) if r[0] < r[1]}
+    refs = [brute_self(lo_e, hi_e, E), every_e,
+            as_set(_bvh_self(lo_e, hi_e, E, X0=X0, X1=X1, thick=thick, active=a, group=g)),
+            brute_cross(lo_v, hi_v, lo_f, hi_f, V, F), brute_cross(lo_v, hi_v, lo_f, hi_f),
+            as_set(_bvh_pairs(lo_v, hi_v, lo_f, hi_f, V, F, X0=X0, X1=X1, thick=thick,
+                              grp=(gv, gf)))]
     old = numba.get_num_threads()
-    numba.set_num_threads(threads)
     try:
-        for flag in ("COLUMN_GATHERED", "COLUMN_DEAL", "COLUMN_RADIX"):
-            monkeypatch.setattr(bp, flag, False)
-        ref = queries()
-        for flag in ("COLUMN_GATHERED", "COLUMN_DEAL", "COLUMN_RADIX"):
-            monkeypatch.setattr(bp, flag, True)
-        got = queries()
+        numba.set_num_threads(1)
+        one = queries()
+        if numba.config.NUMBA_NUM_THREADS >= 2:
+            numba.set_num_threads(2)
+            for x, y in zip(queries(), one):
+                assert np.array_equal(x, y)
     finally:
         numba.set_num_threads(old)
-    for a, b in zip(got, ref):
-        assert len(b) > 0 and np.array_equal(a, b)
-    assert len(ref[1]) > len(ref[0]) > len(ref[2])  # primitives and space-time boxes skip rows
-    assert as_set(ref[0]) == brute_self(lo_e, hi_e, E)
+    for rows, ref in zip(one, refs):
+        assert len(ref) > 0 and len(as_set(rows)) == len(rows) and as_set(rows) == ref
+    assert len(refs[1]) > len(refs[0]) > len(refs[2])  # primitives and space-time boxes skip rows
+    assert any(r[1] == 2 for r in refs[3])  # the big box has rows
 
 
 def test_radix_order_is_the_stable_argsort():
-    """``_sweep_order`` (``COLUMN_RADIX``) orders the boxes as ``np.argsort(kind="stable")``:
+    """``_sweep_order`` orders the boxes as ``np.argsort(kind="stable")``:
     ties by index, negative values, -0.0 equal to 0.0, tiny and huge magnitudes, one value."""
     rng = np.random.default_rng(5)
 

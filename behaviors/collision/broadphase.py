@@ -1689,25 +1689,31 @@ _COL_BIG_SPAN = 4
 _COL_NO_ST = np.zeros((0, 14))
 #: box counts from which the column count and fill run in chunks on all threads
 _COL_PAR_MIN = 16384
-#: the column sweep's slots (runs of columns with about equal entry counts),
-#: ``COLUMN_SLOTS_PER_THREAD`` a thread, taken by the threads one at a time as they finish
-#: (``numba.parallel_chunksize(1)``) instead of one contiguous block of slots a thread: the
-#: sweep's cost per entry varies over the grid (16 slots of the 50k rolled sheet's edge-edge
+#: the column sweep's slots (runs of columns with about equal entry counts), this many a
+#: thread, taken by the threads one at a time as they finish (``numba.parallel_chunksize(1)``):
+#: the sweep's cost per entry varies over the grid (16 slots of the 50k rolled sheet's edge-edge
 #: query, 1 thread: 0.8-4.8 ms; a thread held up by machine load then delays one slot, not
-#: half the sweep). The same rows in the same order. Its wall-time gain is not measured: the
-#: shared 2-core machine ran at load 4-6 (wall 2-3x CPU whatever the setting)
-COLUMN_DEAL = True
+#: half the sweep). The same rows in the same order whatever the slots.
+#:
+#: Choices measured and kept, whose old paths were dropped (the A/B switches
+#: ``COLUMN_GATHERED``, ``COLUMN_DEAL``, ``COLUMN_RADIX``; the rows and their order were the
+#: same either way):
+#:
+#: * the sweep reads int8 flags and every entry's primitive vertices gathered beside its box row
+#:   (``_col_gather``, ``_col_body``) for the shared-vertex test, instead of int64 flags and
+#:   the primitives' rows at the boxes' numbers (a scattered read per tested pair): the 50k
+#:   rolled sheet's VF + EE queries (1 thread, interleaved, CPU) 0.736 (36.1 -> 26.6 ms;
+#:   edge-edge 0.650, vertex-face 0.881);
+#: * slots dealt one at a time, 8 a thread, instead of one contiguous block of 2 slots a thread
+#:   (its wall-time gain was not measured: the machine ran at load 4-6);
+#: * the fill order of the boxes from a radix sort instead of ``np.argsort(kind="stable")``,
+#:   the same order (the rolled sheet's 75k edge boxes, 1 thread, interleaved: 4.7 against
+#:   9.7 ms).
+#:
+#: With ``COLUMN_CELL`` 1 -> 2 these took the 50k rolled sheet's boxes + VF + EE queries on the
+#: idle machine (15 interleaved rounds, same candidate sets) from 48.3 to 35.2 ms at 1 thread
+#: and from 31.1 to 24.1 ms wall (53.3 -> 38.4 ms CPU) at 2 threads
 COLUMN_SLOTS_PER_THREAD = 8
-#: the column sweep reads int8 flags and every entry's primitive vertices gathered beside its
-#: box row (``_col_gather_v``, ``_col_body_v``) for the shared-vertex test, instead of int64
-#: flags and the primitives' rows at the boxes' numbers (a scattered read per tested pair).
-#: The same rows in the same order. The 50k rolled sheet's VF + EE queries (1 thread,
-#: interleaved, CPU): median ratio 0.736 (36.1 -> 26.6 ms; edge-edge 0.650, vertex-face 0.881)
-COLUMN_GATHERED = True
-#: the column fill's order of the boxes (by their low end on the sweep axis, ties by index)
-#: from a radix sort (``_radix_order``) instead of ``np.argsort(kind="stable")``: the same
-#: order (the rolled sheet's 75k edge boxes, 1 thread, interleaved: 4.7 against 9.7 ms)
-COLUMN_RADIX = True
 
 
 @njit(cache=True)
@@ -1861,10 +1867,10 @@ def _radix_order(bits, order, key, key2, tmp, cnt):
 
 
 def _sweep_order(lo, s, out):
-    """The boxes by their low end on the sweep axis ``s``, ties by index (``COLUMN_RADIX``:
-    :func:`_radix_order`; else ``np.argsort(kind="stable")``, the same order)."""
+    """The boxes by their low end on the sweep axis ``s``, ties by index: ``np.argsort(kind=
+    "stable")``, from :func:`_radix_order` from 256 boxes on."""
     n = lo.shape[0]
-    if not COLUMN_RADIX or n < 256:
+    if n < 256:
         return np.argsort(lo[:, s], kind="stable")
     vals = _col_work(out, "sort_v", (n,))
     np.add(lo[:, s], 0.0, out=vals)  # -0.0 -> 0.0 (equal in argsort)
@@ -1938,18 +1944,6 @@ def _col_fill_par(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist, ent, flag
                     flag[p] = (1 if x == x0 else 0) | (2 if y == y0 else 0)
 
 
-@njit(parallel=True, cache=True)
-def _col_gather(ent, lo, hi, s, a0, a1, B):
-    for p in prange(ent.shape[0]):
-        i = ent[p]
-        B[p, 0] = lo[i, s]
-        B[p, 1] = hi[i, s]
-        B[p, 2] = lo[i, a0]
-        B[p, 3] = hi[i, a0]
-        B[p, 4] = lo[i, a1]
-        B[p, 5] = hi[i, a1]
-
-
 @njit(cache=True, inline="always")
 def _st_keep(st, ia, ib):
     """The space-time tests of a pair (rows ``ia``, ``ib`` of ``st``, not empty): not two inactive
@@ -1969,103 +1963,11 @@ def _col_keep(pa, pb, ia, ib, prims_a, prims_b, skip_shared, st):
     return not (skip_shared and _share_vertex(prims_a, pa, prims_b, pb))
 
 
-@njit(cache=True)
-def _col_body(B, flag, ent, s0, m, e1, na, self_mode, prims_a, prims_b, skip_shared, st, out,
-              pos, lim):
-    """Sweep one column: entries ``s0 .. e1-1`` (self mode), or those of set a ``s0 .. m-1``
-    against those of set b ``m .. e1-1`` (each pair once: from its entry with the lower low end
-    on the sweep axis, ties from the set-a entry). A pair needs overlapping boxes on the two
-    column axes and is kept only in the column of its overlap's low corner (one of its entries
-    is its box's first column on each axis: ``flag``), then ``_col_keep``. Rows go to ``out``
-    from ``pos`` while below ``lim``; returns the pair count."""
-    cnt = 0
-    if self_mode:
-        for p in range(s0, e1):
-            his = B[p, 1]
-            l0 = B[p, 2]
-            h0 = B[p, 3]
-            l1 = B[p, 4]
-            h1 = B[p, 5]
-            fp = flag[p]
-            i = ent[p]
-            for q in range(p + 1, e1):
-                if B[q, 0] > his:
-                    break
-                if not (((fp | flag[q]) == 3) & (B[q, 2] <= h0) & (B[q, 3] >= l0)
-                        & (B[q, 4] <= h1) & (B[q, 5] >= l1)):
-                    continue
-                j = ent[q]
-                pa = min(i, j)
-                pb = max(i, j)
-                if not _col_keep(pa, pb, pa, pb, prims_a, prims_b, skip_shared, st):
-                    continue
-                if pos < lim:
-                    out[pos, 0] = pa
-                    out[pos, 1] = pb
-                pos += 1
-                cnt += 1
-        return cnt
-    for side in range(2):
-        # side 0: a entries against b entries with low end >= theirs; side 1: b against a (>)
-        f0 = s0 if side == 0 else m
-        f1 = m if side == 0 else e1
-        g0 = m if side == 0 else s0
-        g1 = e1 if side == 0 else m
-        q0 = g0
-        for p in range(f0, f1):
-            los = B[p, 0]
-            if side == 0:
-                while q0 < g1 and B[q0, 0] < los:
-                    q0 += 1
-            else:
-                while q0 < g1 and B[q0, 0] <= los:
-                    q0 += 1
-            his = B[p, 1]
-            l0 = B[p, 2]
-            h0 = B[p, 3]
-            l1 = B[p, 4]
-            h1 = B[p, 5]
-            fp = flag[p]
-            i = ent[p]
-            for q in range(q0, g1):
-                if B[q, 0] > his:
-                    break
-                if not (((fp | flag[q]) == 3) & (B[q, 2] <= h0) & (B[q, 3] >= l0)
-                        & (B[q, 4] <= h1) & (B[q, 5] >= l1)):
-                    continue
-                j = ent[q]
-                ia = i if side == 0 else j
-                ib = j if side == 0 else i
-                if not _col_keep(ia, ib - na, ia, ib, prims_a, prims_b, skip_shared, st):
-                    continue
-                if pos < lim:
-                    out[pos, 0] = ia
-                    out[pos, 1] = ib - na
-                pos += 1
-                cnt += 1
-    return cnt
-
-
 @njit(parallel=True, cache=True)
-def _col_slots(B, flag, ent, start, mid, na, self_mode, prims_a, prims_b, skip_shared, st,
-               slots, slot_col, slot_pos, slot_lim, out, slot_cnt):
-    """Sweep the columns of every slot in ``slots`` (slot k: columns ``slot_col[k] ..
-    slot_col[k+1]-1`` in order), writing its rows from ``slot_pos[k]`` while below
-    ``slot_lim[k]``; ``slot_cnt[k]``: its pair count (also when they did not fit)."""
-    for t in prange(slots.shape[0]):
-        k = slots[t]
-        pos = slot_pos[k]
-        for col in range(slot_col[k], slot_col[k + 1]):
-            pos += _col_body(B, flag, ent, start[col], mid[col], start[col + 1], na, self_mode,
-                             prims_a, prims_b, skip_shared, st, out, pos, slot_lim[k])
-        slot_cnt[k] = pos - slot_pos[k]
-
-
-@njit(parallel=True, cache=True)
-def _col_gather_v(ent, lo, hi, s, a0, a1, na, prims_a, prims_b, skip_shared, B, V):
-    """:func:`_col_gather` and, with ``skip_shared``, every entry's primitive vertices ``V[p]``
-    (``COLUMN_GATHERED``), the unused places ``-1 - box`` (equal to no vertex and to no other
-    box's)."""
+def _col_gather(ent, lo, hi, s, a0, a1, na, prims_a, prims_b, skip_shared, B, V):
+    """The entries' box rows ``B[p]`` (sweep axis, column axes a0, a1: low, high each) and,
+    with ``skip_shared``, their primitive vertices ``V[p]`` for the shared-vertex test, the
+    unused places ``-1 - box`` (equal to no vertex and to no other box's)."""
     w = V.shape[1]
     for p in prange(ent.shape[0]):
         i = ent[p]
@@ -2102,10 +2004,14 @@ def _share_v(V, p, q):
 
 
 @njit(cache=True)
-def _col_body_v(B, flag, ent, V, s0, m, e1, na, self_mode, skip_shared, st, out, pos, lim):
-    """:func:`_col_body` on the gathered vertices ``V`` (``COLUMN_GATHERED``): the same pairs
-    in the same order; the shared-vertex test reads the entries' own rows instead of the
-    primitives' (scattered) ones."""
+def _col_body(B, flag, ent, V, s0, m, e1, na, self_mode, skip_shared, st, out, pos, lim):
+    """Sweep one column: entries ``s0 .. e1-1`` (self mode), or those of set a ``s0 .. m-1``
+    against those of set b ``m .. e1-1`` (each pair once: from its entry with the lower low end
+    on the sweep axis, ties from the set-a entry). A pair needs overlapping boxes on the two
+    column axes and is kept only in the column of its overlap's low corner (one of its entries
+    is its box's first column on each axis: ``flag``), then no shared vertex (the gathered
+    vertices ``V``) and the space-time tests (``_st_keep``). Rows go to ``out`` from ``pos``
+    while below ``lim``; returns the pair count."""
     cnt = 0
     has_st = st.shape[0] > 0
     if self_mode:
@@ -2181,14 +2087,16 @@ def _col_body_v(B, flag, ent, V, s0, m, e1, na, self_mode, skip_shared, st, out,
 
 
 @njit(parallel=True, cache=True)
-def _col_slots_v(B, flag, ent, V, start, mid, na, self_mode, skip_shared, st, slots, slot_col,
+def _col_slots(B, flag, ent, V, start, mid, na, self_mode, skip_shared, st, slots, slot_col,
                  slot_pos, slot_lim, out, slot_cnt):
-    """:func:`_col_slots` with :func:`_col_body_v`."""
+    """Sweep the columns of every slot in ``slots`` (slot k: columns ``slot_col[k] ..
+    slot_col[k+1]-1`` in order), writing its rows from ``slot_pos[k]`` while below
+    ``slot_lim[k]``; ``slot_cnt[k]``: its pair count (also when they did not fit)."""
     for t in prange(slots.shape[0]):
         k = slots[t]
         pos = slot_pos[k]
         for col in range(slot_col[k], slot_col[k + 1]):
-            pos += _col_body_v(B, flag, ent, V, start[col], mid[col], start[col + 1], na,
+            pos += _col_body(B, flag, ent, V, start[col], mid[col], start[col + 1], na,
                                self_mode, skip_shared, st, out, pos, slot_lim[k])
         slot_cnt[k] = pos - slot_pos[k]
 
@@ -2269,9 +2177,8 @@ def _col_work(out, key, shape, dtype=np.float64):
 
 
 def _dealt(nslot):
-    """The parallel chunk size of the column sweep's slots (``COLUMN_DEAL``): one slot at a
-    time, or numba's default (one block a thread)."""
-    if COLUMN_DEAL and nslot > 1:
+    """The parallel chunk size of the column sweep's slots: one slot at a time."""
+    if nslot > 1:
         return parallel_chunksize(1)
     return contextlib.nullcontext()
 
@@ -2284,7 +2191,6 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
     if not (np.isfinite(span) and span < 1e150):
         return _tree_fallback(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out)
     big = _col_work(out, "big", (n,), np.bool_)
-    gathered = COLUMN_GATHERED
     s, a0, a1, c, o0, o1, nx, ny, nbig = _col_setup(lo, hi, COLUMN_CELL, _COL_BIG_SPAN, big)
     ncol = nx * ny
     start = _col_work(out, "start", (ncol + 1,), np.int64)
@@ -2297,33 +2203,25 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
         _col_hist(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist)
         nent = _col_offsets(hist, start, mid)
         ent = _col_work(out, "ent", (nent,), np.int64)
-        flag = _col_work(out, "flag8", (nent,), np.int8) if gathered else \
-            _col_work(out, "flag", (nent,), np.int64)
+        flag = _col_work(out, "flag8", (nent,), np.int8)
         _col_fill_par(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist, ent, flag)
     else:
         nent = _col_count(lo, hi, big, na, a0, a1, c, o0, o1, ny, start, mid)
         ent = _col_work(out, "ent", (nent,), np.int64)
-        flag = _col_work(out, "flag8", (nent,), np.int8) if gathered else \
-            _col_work(out, "flag", (nent,), np.int64)
+        flag = _col_work(out, "flag8", (nent,), np.int8)
         if nent:
             order = _sweep_order(lo, s, out)
             _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, flag)
     B = _col_work(out, "B", (nent, 6))
-    if gathered:
-        w = max(prims_a.shape[1], prims_b.shape[1], 3)
-        V = _col_work(out, "V", (nent, w) if skip_shared else (1, w), np.int64)
-        _col_gather_v(ent, lo, hi, s, a0, a1, na, prims_a, prims_b, skip_shared, B, V)
-        args = (B, flag, ent, V, start, mid, na, self_mode, skip_shared, st)
-        sweep = _col_slots_v
-    else:
-        _col_gather(ent, lo, hi, s, a0, a1, B)
-        args = (B, flag, ent, start, mid, na, self_mode, prims_a, prims_b, skip_shared, st)
-        sweep = _col_slots
-    # slots: runs of whole columns with about equal entry counts, two per thread, swept in
-    # parallel; the rows come in column order whatever the slots
+    w = max(prims_a.shape[1], prims_b.shape[1], 3)
+    V = _col_work(out, "V", (nent, w) if skip_shared else (1, w), np.int64)
+    _col_gather(ent, lo, hi, s, a0, a1, na, prims_a, prims_b, skip_shared, B, V)
+    args = (B, flag, ent, V, start, mid, na, self_mode, skip_shared, st)
+    sweep = _col_slots
+    # slots: runs of whole columns with about equal entry counts, dealt to the threads one at a
+    # time; the rows come in column order whatever the slots
     nth = get_num_threads()
-    nslot = max(1, min(_SLOTS, ncol, (COLUMN_SLOTS_PER_THREAD if COLUMN_DEAL
-                                      else _SLOTS_PER_THREAD) * nth))
+    nslot = max(1, min(_SLOTS, ncol, COLUMN_SLOTS_PER_THREAD * nth))
     if nth == 1:
         nslot = 1
     slot_col = np.searchsorted(start, (nent * np.arange(nslot + 1)) // nslot).astype(np.int64)

@@ -24,11 +24,15 @@ Timed, each as the median over ``repeats`` runs after a JIT warm-up run:
   "z-sort" the Morton ranks and the Z-order sort (:func:`zsort_pairs`) of both pair sets that
   the contacts add to the grid's candidates (``contacts.GRID_ORDER``), timed apart.
 
-``--ab-grid "COLUMN_CELL=1.0,COLUMN_GATHERED=False"``: instead, the sorted column grid's
+``--ab-grid "COLUMN_CELL=1.0"``: instead, the sorted column grid's
 boxes+query with those settings of the broad phase ("A") against the defaults ("B"), each of
 ``repeats`` rounds running both in alternating order (ABBA), so machine load hits both alike:
 median CPU (process time, all threads) and wall ms of each, the median of the per-round CPU
-and wall ratios B / A, and whether both give the same candidate sets.
+and wall ratios B / A, and whether both give the same candidate sets (and the same rows in the same order).
+
+``--ab-module before.py``: as ``--ab-grid``, with "A" the broad-phase module in that file
+(another version, e.g. ``git show REV:behaviors/collision/broadphase.py > before.py``) imported
+apart, its own kernels on the same boxes.
 """
 
 from __future__ import annotations
@@ -183,27 +187,46 @@ def bench_one(n_tri: int, repeats: int):
                 cpu_sort=1e3 * np.median(cpu_sort))
 
 
-def ab_grid(n_tri: int, repeats: int, settings: str):
+def _load_module(path: str):
+    """The broad-phase module in the file ``path`` (another version of it, e.g. from
+    ``git show REV:behaviors/collision/broadphase.py > before.py``), imported apart."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("lokigraph_broadphase_ab", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def ab_grid(n_tri: int, repeats: int, settings: str = "", module: str = ""):
     """The column grid's boxes+query with the broad-phase ``settings`` ("NAME=value,...", as
-    "A") and with the defaults ("B"), interleaved; see the module docstring."""
+    "A") or with the broad-phase module in the file ``module`` (as "A"), against the defaults
+    ("B"), interleaved; see the module docstring."""
     (_, X1, X2), F, _, E, verts, thick, boxes = _sheet(n_tri)
+    mod_a = _load_module(module) if module else bp
     alt = {}
-    for kv in settings.split(","):
+    for kv in (settings.split(",") if settings else []):
         k, v = (t.strip() for t in kv.split("="))
         cur = getattr(bp, k)
         alt[k] = v == "True" if isinstance(cur, bool) else type(cur)(float(v))
     default = {k: getattr(bp, k) for k in alt}
-    bufs = {a: (bp.PairBuffer(), bp.PairBuffer()) for a in "AB"}
+    bufs = {"A": (mod_a.PairBuffer(), mod_a.PairBuffer()), "B": (bp.PairBuffer(), bp.PairBuffer())}
     cpu = {"A": [], "B": []}
     wall = {"A": [], "B": []}
     sets = {}
+    rows = {}
 
     def run(a):
         for k in alt:
             setattr(bp, k, alt[k] if a == "A" else default[k])
+        m = mod_a if a == "A" else bp
+        lo_v, hi_v, lo_e, hi_e, lo_f, hi_f = boxes
         w0, c0 = time.perf_counter(), time.process_time()
-        _boxes(X1, X2, verts, E, F, thick, boxes)
-        vf, ee = _grid_pairs(verts, E, F, boxes, *bufs[a])
+        m.primitive_boxes(X1, verts, X2, thick, lo_v, hi_v)
+        m.primitive_boxes(X1, E, X2, thick, lo_e, hi_e)
+        m.primitive_boxes(X1, F, X2, thick, lo_f, hi_f)
+        vf = m.column_query_pairs(lo_v, hi_v, lo_f, hi_f, verts, F, out=bufs[a][0])
+        ee = m.column_query_self(lo_e, hi_e, E, out=bufs[a][1])
         return time.process_time() - c0, time.perf_counter() - w0, vf, ee
 
     try:
@@ -215,15 +238,18 @@ def ab_grid(n_tri: int, repeats: int, settings: str):
                     wall[a].append(w)
                 if rep == 1:
                     sets[a] = (set(map(tuple, vf.tolist())), set(map(tuple, ee.tolist())))
+                    rows[a] = (vf.copy(), ee.copy())
     finally:
         for k, v in default.items():
             setattr(bp, k, v)
     ca, cb = np.array(cpu["A"]), np.array(cpu["B"])
     wa, wb = np.array(wall["A"]), np.array(wall["B"])
+    same_rows = all(np.array_equal(x, y) for x, y in zip(rows["A"], rows["B"]))
     return dict(tris=len(F), cpu_a=1e3 * np.median(ca), cpu_b=1e3 * np.median(cb),
                 wall_a=1e3 * np.median(wa), wall_b=1e3 * np.median(wb),
                 cpu_ratio=float(np.median(cb / ca)), wall_ratio=float(np.median(wb / wa)),
-                same=sets["A"] == sets["B"], vf=len(sets["B"][0]), ee=len(sets["B"][1]))
+                same=sets["A"] == sets["B"], same_rows=same_rows, vf=len(sets["B"][0]),
+                ee=len(sets["B"][1]))
 
 
 def main(argv=None):
@@ -234,6 +260,9 @@ def main(argv=None):
     ap.add_argument("--ab-grid", default="", metavar="NAME=VALUE,...",
                     help="the column grid with these broad-phase settings against the defaults, "
                     "interleaved (see the module docstring)")
+    ap.add_argument("--ab-module", default="", metavar="FILE",
+                    help="the column grid of the broad-phase module in FILE (another version) "
+                    "against this one's, interleaved (see the module docstring)")
     args = ap.parse_args(argv)
     try:
         import numba
@@ -241,18 +270,20 @@ def main(argv=None):
         threads = numba.get_num_threads()
     except Exception:  # pragma: no cover
         threads = -1
-    if args.ab_grid:
+    if args.ab_grid or args.ab_module:
+        what = args.ab_grid or args.ab_module
         print(f"sorted column grid, boxes+query (rolled sheet, self VF + EE), numba threads = "
-              f"{threads}: A = {args.ab_grid}, B = defaults, {args.repeats} interleaved rounds")
+              f"{threads}: A = {what}, B = defaults, {args.repeats} interleaved rounds")
         hdr = (f"{'triangles':>10} {'CPU ms A':>9} {'CPU ms B':>9} {'CPU B/A':>8} "
-               f"{'wall ms A':>10} {'wall ms B':>10} {'wall B/A':>9} {'same sets':>10}")
+               f"{'wall ms A':>10} {'wall ms B':>10} {'wall B/A':>9} {'same sets':>10} "
+               f"{'same rows':>10}")
         print(hdr)
         print("-" * len(hdr))
         for s in args.sizes:
-            r = ab_grid(s, args.repeats, args.ab_grid)
+            r = ab_grid(s, args.repeats, args.ab_grid, args.ab_module)
             print(f"{r['tris']:>10d} {r['cpu_a']:>9.2f} {r['cpu_b']:>9.2f} {r['cpu_ratio']:>8.3f} "
                   f"{r['wall_a']:>10.2f} {r['wall_b']:>10.2f} {r['wall_ratio']:>9.3f} "
-                  f"{str(r['same']):>10}")
+                  f"{str(r['same']):>10} {str(r['same_rows']):>10}")
         print("(median over the rounds; ratios: median of the per-round ratios)")
         return 0
     print(f"lokigraph broad phase benchmark: rolled cloth sheet, self VF + EE, numba threads = {threads}")
