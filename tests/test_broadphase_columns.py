@@ -392,23 +392,33 @@ def test_sweep_rows_match_the_references_at_one_and_two_threads(kind):
     assert any(r[1] == 2 for r in refs[3])  # the big box has rows
 
 
-def test_radix_order_is_the_stable_argsort():
-    """``_sweep_order`` orders the boxes as ``np.argsort(kind="stable")``:
-    ties by index, negative values, -0.0 equal to 0.0, tiny and huge magnitudes, one value."""
+@pytest.mark.parametrize("par_min", [None, 0])
+def test_sweep_order_is_the_stable_argsort(monkeypatch, par_min):
+    """``_sweep_order`` (the bucket sort ``_bucket_order``) orders the boxes as
+    ``np.argsort(kind="stable")``: ties by index, negative values, -0.0 equal to 0.0, tiny and
+    huge magnitudes (a spread that overflows), one value, few values in many ties, a bucket
+    sorted past its insertion budget (merge sorted); ``par_min`` 0: in chunks on all threads."""
+    if par_min is not None:
+        monkeypatch.setattr(bp, "_COL_PAR_MIN", par_min)
     rng = np.random.default_rng(5)
 
     class Out:
         pass
 
     out = Out()
-    for t in range(40):
-        n = int(rng.integers(256, 2000))
-        if t % 3 == 0:
-            x = rng.choice([-2.5, -1.0, -0.0, 0.0, 1e-300, 3.0, 7.25, -1e300], n)
-        elif t % 3 == 1:
+    for t in range(60):
+        n = int(rng.integers(256, 3000))
+        if t % 5 == 0:
+            x = rng.choice([-2.5, -1.0, -0.0, 0.0, 1e-300, 3.0, 7.25, -1e300, 1e300], n)
+        elif t % 5 == 1:
             x = rng.normal(size=n) * 10.0 ** rng.integers(-5, 5)
-        else:
+        elif t % 5 == 2:
             x = np.full(n, 0.5)
+        elif t % 5 == 3:
+            x = np.round(rng.random(n) * rng.integers(1, 60)) / 7.0  # few values, many ties
+        else:
+            x = np.concatenate([rng.random(n - 8) * 1e-6, [1e3, -1e3, 5.0, 2.0, 0, 0, 1, 1]])
+            x[: n // 2] = np.sort(x[: n // 2])[::-1]  # one crowded bucket in reverse order
         lo = rng.random((n, 3))
         lo[:, t % 3] = x
         assert np.array_equal(bp._sweep_order(lo, t % 3, out),

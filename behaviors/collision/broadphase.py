@@ -1712,35 +1712,110 @@ _COL_PAR_MIN = 16384
 #:
 #: With ``COLUMN_CELL`` 1 -> 2 these took the 50k rolled sheet's boxes + VF + EE queries on the
 #: idle machine (15 interleaved rounds, same candidate sets) from 48.3 to 35.2 ms at 1 thread
-#: and from 31.1 to 24.1 ms wall (53.3 -> 38.4 ms CPU) at 2 threads
+#: and from 31.1 to 24.1 ms wall (53.3 -> 38.4 ms CPU) at 2 threads.
+#:
+#: Then, each measured against its old path with ``bench broadphase --ab-grid`` (15
+#: interleaved rounds, the same rows in the same order; CPU ratio new / old on the shared
+#: machine at load 3-5, where the 2-thread wall times are 2-4x the CPU and say little):
+#:
+#: * the fill order from a parallel bucket sort (``_bucket_order``) instead of the serial radix
+#:   sort: the same order; 0.956 at 1 thread, 0.995 at 2 (the sort of the 75k edge boxes
+#:   alone, 1 thread: 0.48 against 0.79 ms);
+#: * every box's columns packed in one int64 once, in index order (``_col_cells``), for the
+#:   count and the fill, which read the boxes in the fill order (at random): 0.936 at 1
+#:   thread, 0.899 at 2;
+#: * the setup in parallel chunks with the finiteness check (``_col_setup``) instead of a serial
+#:   setup after numpy's reductions: 0.959 at 1 thread, 1.016 at 2 (load 5).
+#:
+#: Tried and dropped: the box rows written in the fill order once and gathered from there
+#: (at the count: 1.12x the CPU at 1 thread; in a pass of their own: 1.117x; the boxes of a
+#: column are read nearly in order already, neighbours along the sweep axis being neighbours
+#: in the mesh); the sweep along another axis than the centres' widest spread (1.57x and
+#: 1.37x at 1 thread)
 COLUMN_SLOTS_PER_THREAD = 8
 
 
-@njit(cache=True)
-def _col_setup(lo, hi, factor, big_span, big):
+@njit(parallel=True, cache=True)
+def _col_setup(lo, hi, factor, big_span, big, part):
     """Sweep axis, column axes, column side [m], origin and column counts of the sorted column
     grid over boxes ``lo``/``hi``; flags ``big`` (boxes tested against all). The sweep axis is
     the one along which the box centres spread most; the column side starts at ``factor`` x the
     mean box extent over the two other axes and doubles while the grid would have more than
-    8 n + 1024 columns or more than n / 256 + 32 big boxes.
-    Returns (s, a0, a1, c, o0, o1, nx, ny, big_count)."""
+    8 n + 1024 columns or more than n / 256 + 32 big boxes. First whether the boxes are finite
+    and spread less than 1e150: else ``ok`` is False and nothing else is set (the caller falls
+    back to the trees). In ``part.shape[0]`` chunks of the boxes in parallel, the mean extent
+    summed chunk by chunk (a fixed number of chunks: the same grid at any thread count);
+    ``part``: float64 scratch (chunks, 10). Returns (ok, s, a0, a1, c, o0, o1, nx, ny,
+    big_count)."""
     n = lo.shape[0]
+    nch = part.shape[0]
+    for k in prange(nch):
+        cmin0 = cmin1 = cmin2 = np.inf
+        cmax0 = cmax1 = cmax2 = -np.inf
+        lmin = hmin = np.inf
+        lmax = hmax = -np.inf
+        bad = 0.0
+        for i in range(k * n // nch, (k + 1) * n // nch):
+            # x - x is 0 for a finite x, NaN for an infinite or NaN one
+            bad += ((lo[i, 0] - lo[i, 0]) + (lo[i, 1] - lo[i, 1]) + (lo[i, 2] - lo[i, 2])
+                    + (hi[i, 0] - hi[i, 0]) + (hi[i, 1] - hi[i, 1]) + (hi[i, 2] - hi[i, 2]))
+            lmin = min(lmin, lo[i, 0], lo[i, 1], lo[i, 2])
+            lmax = max(lmax, lo[i, 0], lo[i, 1], lo[i, 2])
+            hmin = min(hmin, hi[i, 0], hi[i, 1], hi[i, 2])
+            hmax = max(hmax, hi[i, 0], hi[i, 1], hi[i, 2])
+            m0 = 0.5 * lo[i, 0] + 0.5 * hi[i, 0]
+            m1 = 0.5 * lo[i, 1] + 0.5 * hi[i, 1]
+            m2 = 0.5 * lo[i, 2] + 0.5 * hi[i, 2]
+            cmin0 = min(cmin0, m0)
+            cmax0 = max(cmax0, m0)
+            cmin1 = min(cmin1, m1)
+            cmax1 = max(cmax1, m1)
+            cmin2 = min(cmin2, m2)
+            cmax2 = max(cmax2, m2)
+        part[k, 0] = cmin0
+        part[k, 1] = cmin1
+        part[k, 2] = cmin2
+        part[k, 3] = cmax0
+        part[k, 4] = cmax1
+        part[k, 5] = cmax2
+        part[k, 6] = lmin
+        part[k, 7] = lmax
+        part[k, 8] = hmin
+        part[k, 9] = hmax
+        if bad != 0.0:
+            part[k, 6] = np.nan
     cmin = np.full(3, np.inf)
     cmax = np.full(3, -np.inf)
-    for i in range(n):
+    lmin = hmin = np.inf
+    lmax = hmax = -np.inf
+    ok = True
+    for k in range(nch):
+        if part[k, 6] != part[k, 6]:
+            ok = False
         for a in range(3):
-            m = 0.5 * lo[i, a] + 0.5 * hi[i, a]
-            cmin[a] = min(cmin[a], m)
-            cmax[a] = max(cmax[a], m)
+            cmin[a] = min(cmin[a], part[k, a])
+            cmax[a] = max(cmax[a], part[k, 3 + a])
+        lmin = min(lmin, part[k, 6])
+        lmax = max(lmax, part[k, 7])
+        hmin = min(hmin, part[k, 8])
+        hmax = max(hmax, part[k, 9])
+    span = max(hmax - lmin, lmax - hmin)
+    if not (ok and np.isfinite(span) and span < 1e150):
+        return False, 0, 0, 0, 0.0, 0.0, 0.0, 0, 0, 0
     s = 0
     for a in range(1, 3):
         if cmax[a] - cmin[a] > cmax[s] - cmin[s]:
             s = a
     a0 = 1 if s == 0 else 0
     a1 = 1 if s == 2 else 2
+    for k in prange(nch):
+        e = 0.0
+        for i in range(k * n // nch, (k + 1) * n // nch):
+            e += max(hi[i, a0] - lo[i, a0], hi[i, a1] - lo[i, a1])
+        part[k, 0] = e
     ext = 0.0
-    for i in range(n):
-        ext += max(hi[i, a0] - lo[i, a0], hi[i, a1] - lo[i, a1])
+    for k in range(nch):
+        ext += part[k, 0]
     c = factor * ext / max(n, 1)
     span = max(cmax[a0] - cmin[a0], cmax[a1] - cmin[a1])
     if not c > 0.0:
@@ -1748,28 +1823,45 @@ def _col_setup(lo, hi, factor, big_span, big):
     if not c > 0.0:
         c = 1.0
     while True:
-        nbig = 0
-        o0 = np.inf
-        o1 = np.inf
-        e0 = -np.inf
-        e1 = -np.inf
         lim = big_span * c
-        for i in range(n):
-            big[i] = hi[i, a0] - lo[i, a0] > lim or hi[i, a1] - lo[i, a1] > lim
-            if big[i]:
-                nbig += 1
-            else:
-                o0 = min(o0, lo[i, a0])
-                o1 = min(o1, lo[i, a1])
-                e0 = max(e0, hi[i, a0])
-                e1 = max(e1, hi[i, a1])
+        for k in prange(nch):
+            nb = 0
+            q0 = q1 = np.inf
+            f0 = f1 = -np.inf
+            for i in range(k * n // nch, (k + 1) * n // nch):
+                bg = hi[i, a0] - lo[i, a0] > lim or hi[i, a1] - lo[i, a1] > lim
+                big[i] = bg
+                if bg:
+                    nb += 1
+                else:
+                    q0 = min(q0, lo[i, a0])
+                    q1 = min(q1, lo[i, a1])
+                    f0 = max(f0, hi[i, a0])
+                    f1 = max(f1, hi[i, a1])
+            part[k, 0] = nb
+            part[k, 1] = q0
+            part[k, 2] = q1
+            part[k, 3] = f0
+            part[k, 4] = f1
+        nbig = 0
+        o0 = o1 = np.inf
+        e0 = e1 = -np.inf
+        for k in range(nch):
+            nbig += int(part[k, 0])
+            o0 = min(o0, part[k, 1])
+            o1 = min(o1, part[k, 2])
+            e0 = max(e0, part[k, 3])
+            e1 = max(e1, part[k, 4])
         if nbig == n:
-            return s, a0, a1, c, 0.0, 0.0, 1, 1, nbig
+            return True, s, a0, a1, c, 0.0, 0.0, 1, 1, nbig
         nx = int((e0 - o0) / c) + 1
         ny = int((e1 - o1) / c) + 1
         if (nx * ny <= 8 * n + 1024 and nbig <= n // 256 + 32) or not np.isfinite(c * 2.0):
-            return s, a0, a1, c, o0, o1, nx, ny, nbig
+            return True, s, a0, a1, c, o0, o1, nx, ny, nbig
         c *= 2.0
+
+
+_COL_SETUP_CHUNKS = 64  # chunks of _col_setup (fixed: the same grid at any thread count)
 
 
 @njit(inline="always", cache=True)
@@ -1780,125 +1872,111 @@ def _cells(lo, hi, i, a0, a1, c, o0, o1):
             int((lo[i, a1] - o1) / c), int((hi[i, a1] - o1) / c))
 
 
-@njit(cache=True)
-def _col_count(lo, hi, big, na, a0, a1, c, o0, o1, ny, start, mid):
-    """CSR offsets ``start`` (ncol + 1) of the boxes' column entries, a column's entries of set
-    a (boxes ``0 .. na-1``) first, those of set b from ``mid[col]`` on; returns their number."""
+@njit(cache=True, inline="always")
+def _bucket(v, vmin, scale, nb):
+    """The bucket of ``v`` among ``nb`` (non-decreasing in ``v``: every step rounds
+    monotonically; overflow or a zero scale ends in the first or the last)."""
+    t = (v - vmin) * scale
+    return int(t) if t < nb else nb - 1
+
+
+@njit(parallel=True, cache=True)
+def _bucket_order(lo, s, order, key, key2, hist, bstart, mm, width):
+    """``order``: the boxes ``0 .. n-1`` by ``lo[:, s]`` (-0.0 equal to 0.0), ties by index:
+    ``np.argsort(lo[:, s], kind="stable")``, in parallel. The values go into ``nb =
+    bstart.shape[0] - 1`` buckets of equal width between their least and greatest (a counting
+    sort, ``hist.shape[0]`` chunks of the boxes in parallel, each chunk's boxes in index order),
+    then every bucket is sorted on its own (insertion, stable; past ``width`` shifts a value on
+    average: a merge sort). ``key``, ``key2``: float64 scratch of n; ``hist``: int64 (chunks,
+    nb); ``mm``: float64 (chunks, 2)."""
     n = lo.shape[0]
-    ncol = start.shape[0] - 1
-    start[:] = 0
-    mid[:] = 0
-    for i in range(n):
-        if big[i]:
-            continue
-        x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
-        for x in range(x0, x1 + 1):
-            for y in range(y0, y1 + 1):
-                start[x * ny + y + 1] += 1
-                if i < na:
-                    mid[x * ny + y] += 1
-    for k in range(ncol):
-        start[k + 1] += start[k]
-        mid[k] += start[k]
-    return start[ncol]
+    nch = hist.shape[0]
+    nb = bstart.shape[0] - 1
+    for k in prange(nch):
+        a = k * n // nch
+        b = (k + 1) * n // nch
+        vlo = np.inf
+        vhi = -np.inf
+        for i in range(a, b):
+            v = lo[i, s] + 0.0
+            key[i] = v
+            vlo = min(vlo, v)
+            vhi = max(vhi, v)
+        mm[k, 0] = vlo
+        mm[k, 1] = vhi
+    vmin = mm[0, 0]
+    vmax = mm[0, 1]
+    for k in range(1, nch):
+        vmin = min(vmin, mm[k, 0])
+        vmax = max(vmax, mm[k, 1])
+    scale = nb / (vmax - vmin) if vmax > vmin else 0.0
+    for k in prange(nch):
+        hist[k, :] = 0
+        for i in range(k * n // nch, (k + 1) * n // nch):
+            hist[k, _bucket(key[i], vmin, scale, nb)] += 1
+    pos = 0
+    for j in range(nb):
+        bstart[j] = pos
+        for k in range(nch):
+            c = hist[k, j]
+            hist[k, j] = pos
+            pos += c
+    bstart[nb] = pos
+    for k in prange(nch):
+        for i in range(k * n // nch, (k + 1) * n // nch):
+            v = key[i]
+            j = _bucket(v, vmin, scale, nb)
+            p = hist[k, j]
+            hist[k, j] = p + 1
+            order[p] = i
+            key2[p] = v
+    nsort = 8 * nch if nch > 1 else 1
+    for t in prange(nsort):
+        for j in range(t * nb // nsort, (t + 1) * nb // nsort):
+            s0 = bstart[j]
+            e = bstart[j + 1]
+            budget = width * (e - s0)  # shifts; past them the rest is merge sorted
+            for p in range(s0 + 1, e):
+                v = key2[p]
+                if not key2[p - 1] > v:
+                    continue
+                i = order[p]
+                q = p - 1
+                while q >= s0 and key2[q] > v:
+                    key2[q + 1] = key2[q]
+                    order[q + 1] = order[q]
+                    q -= 1
+                key2[q + 1] = v
+                order[q + 1] = i
+                budget -= p - 1 - q
+                if budget < 0:
+                    # stable: the insertion sort kept equal values in index order
+                    perm = np.argsort(key2[s0:e], kind="mergesort")
+                    idx = order[s0:e].copy()
+                    for r in range(e - s0):
+                        order[s0 + r] = idx[perm[r]]
+                    break
 
 
-@njit(cache=True)
-def _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, flag):
-    """Counting sort of the boxes' column entries at the offsets of :func:`_col_count` (boxes
-    in ``order``: by the low end on the sweep axis, so both sets' runs of every column are
-    sorted); ``flag``: bit 0 set where the column is the box's first along a0, bit 1 along a1."""
-    fill_a = start[:-1].copy()
-    fill_b = mid.copy()
-    for t in range(order.shape[0]):
-        i = order[t]
-        if big[i]:
-            continue
-        x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
-        for x in range(x0, x1 + 1):
-            for y in range(y0, y1 + 1):
-                col = x * ny + y
-                if i < na:
-                    p = fill_a[col]
-                    fill_a[col] = p + 1
-                else:
-                    p = fill_b[col]
-                    fill_b[col] = p + 1
-                ent[p] = i
-                flag[p] = (1 if x == x0 else 0) | (2 if y == y0 else 0)
-
-
-@njit(cache=True)
-def _radix_order(bits, order, key, key2, tmp, cnt):
-    """``order``: ``0 .. m-1`` by the float64 values whose bits (int64 view, no -0.0, no NaN)
-    are ``bits``, ties by index: ``np.argsort(values, kind="stable")``, by an LSD radix sort of
-    11-bit digits (stable; a digit every value shares is skipped). ``key``, ``key2``, ``tmp``:
-    int64 scratch of ``m``, ``cnt``: int64 scratch of (6, 2049)."""
-    m = bits.shape[0]
-    flip = np.int64(-9223372036854775807 - 1)
-    cnt[:, :] = 0
-    for i in range(m):
-        k = bits[i]
-        k = (k ^ ((k >> 63) & np.int64(9223372036854775807))) ^ flip  # unsigned order
-        key[i] = k
-        order[i] = i
-        for d in range(6):
-            cnt[d, ((k >> (11 * d)) & 2047) + 1] += 1
-    src_k, dst_k, src_i, dst_i = key, key2, order, tmp
-    moved = 0
-    for d in range(6):
-        c = cnt[d]
-        if c[((src_k[0] >> (11 * d)) & 2047) + 1] == m:
-            continue  # every value has this digit
-        for b in range(2048):
-            c[b + 1] += c[b]
-        for r in range(m):
-            k = src_k[r]
-            b = (k >> (11 * d)) & 2047
-            q = c[b]
-            c[b] = q + 1
-            dst_k[q] = k
-            dst_i[q] = src_i[r]
-        src_k, dst_k = dst_k, src_k
-        src_i, dst_i = dst_i, src_i
-        moved += 1
-    if moved % 2 == 1:
-        order[:] = tmp
+_BUCKET_SIZE = 8  # mean values per bucket of _bucket_order
+_BUCKET_WIDTH = 8  # mean shifts a value of a bucket's insertion sort before a merge sort
 
 
 def _sweep_order(lo, s, out):
     """The boxes by their low end on the sweep axis ``s``, ties by index: ``np.argsort(kind=
-    "stable")``, from :func:`_radix_order` from 256 boxes on."""
+    "stable")``, from :func:`_bucket_order` from 256 boxes on (in parallel from
+    ``_COL_PAR_MIN``)."""
     n = lo.shape[0]
     if n < 256:
         return np.argsort(lo[:, s], kind="stable")
-    vals = _col_work(out, "sort_v", (n,))
-    np.add(lo[:, s], 0.0, out=vals)  # -0.0 -> 0.0 (equal in argsort)
     order = _col_work(out, "sort_o", (n,), np.int64)
-    _radix_order(vals.view(np.int64), order, _col_work(out, "sort_k", (n,), np.int64),
-                 _col_work(out, "sort_k2", (n,), np.int64),
-                 _col_work(out, "sort_t", (n,), np.int64),
-                 _col_work(out, "sort_c", (6, 2049), np.int64))
+    nch = get_num_threads() if n >= _COL_PAR_MIN else 1
+    nb = max(1, n // _BUCKET_SIZE)
+    _bucket_order(lo, s, order, _col_work(out, "sort_v", (n,)), _col_work(out, "sort_v2", (n,)),
+                  _col_work(out, "sort_h", (nch, nb), np.int64),
+                  _col_work(out, "sort_b", (nb + 1,), np.int64), _col_work(out, "sort_m", (nch, 2)),
+                  _BUCKET_WIDTH)
     return order
-
-
-@njit(parallel=True, cache=True)
-def _col_hist(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist):
-    """Parallel column count: chunk k of ``order`` (``hist.shape[0]`` equal chunks) counts its
-    boxes' entries per column into ``hist[k, 0]`` (set a) and ``hist[k, 1]`` (set b)."""
-    nch = hist.shape[0]
-    m = order.shape[0]
-    for k in prange(nch):
-        hist[k, :, :] = 0
-        for t in range(k * m // nch, (k + 1) * m // nch):
-            i = order[t]
-            if big[i]:
-                continue
-            x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
-            b = 0 if i < na else 1
-            for x in range(x0, x1 + 1):
-                for y in range(y0, y1 + 1):
-                    hist[k, b, x * ny + y] += 1
 
 
 @njit(cache=True)
@@ -1922,28 +2000,6 @@ def _col_offsets(hist, start, mid):
     return pos
 
 
-@njit(parallel=True, cache=True)
-def _col_fill_par(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist, ent, flag):
-    """:func:`_col_fill` with the chunks of :func:`_col_hist` in parallel, each from its own
-    positions (``hist`` after :func:`_col_offsets`): every column's runs stay sorted."""
-    nch = hist.shape[0]
-    m = order.shape[0]
-    for k in prange(nch):
-        for t in range(k * m // nch, (k + 1) * m // nch):
-            i = order[t]
-            if big[i]:
-                continue
-            x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
-            b = 0 if i < na else 1
-            for x in range(x0, x1 + 1):
-                for y in range(y0, y1 + 1):
-                    col = x * ny + y
-                    p = hist[k, b, col]
-                    hist[k, b, col] = p + 1
-                    ent[p] = i
-                    flag[p] = (1 if x == x0 else 0) | (2 if y == y0 else 0)
-
-
 @njit(cache=True, inline="always")
 def _st_keep(st, ia, ib):
     """The space-time tests of a pair (rows ``ia``, ``ib`` of ``st``, not empty): not two inactive
@@ -1961,6 +2017,97 @@ def _col_keep(pa, pb, ia, ib, prims_a, prims_b, skip_shared, st):
     if st.shape[0] and not _st_keep(st, ia, ib):
         return False
     return not (skip_shared and _share_vertex(prims_a, pa, prims_b, pb))
+
+
+@njit(parallel=True, cache=True)
+def _col_cells(lo, hi, big, a0, a1, c, o0, o1, ny, cells):
+    """Every box's columns packed in one int64: its first column
+    ``x0 * ny + y0`` above 8 bits, ``x1 - x0`` in bits 4-7, ``y1 - y0`` in bits 0-3 (a box that
+    is not big spans at most ``_COL_BIG_SPAN`` + 1 columns an axis); -1 for a big box. The
+    count and the fill read these 8 bytes a box in the fill order instead of its two box rows."""
+    for i in prange(lo.shape[0]):
+        if big[i]:
+            cells[i] = -1
+            continue
+        x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
+        cells[i] = ((x0 * ny + y0) << 8) | ((x1 - x0) << 4) | (y1 - y0)
+
+
+@njit(cache=True)
+def _col_count(cells, na, ny, start, mid):
+    """CSR offsets ``start`` (ncol + 1) of the boxes' column entries (packed columns
+    ``cells``, :func:`_col_cells`), a column's entries of set a (boxes ``0 .. na-1``) first,
+    those of set b from ``mid[col]`` on; returns their number."""
+    ncol = start.shape[0] - 1
+    start[:] = 0
+    mid[:] = 0
+    for i in range(cells.shape[0]):
+        v = cells[i]
+        if v < 0:
+            continue
+        col0 = v >> 8
+        dx = (v >> 4) & 15
+        dy = v & 15
+        for x in range(dx + 1):
+            for y in range(dy + 1):
+                start[col0 + x * ny + y + 1] += 1
+                if i < na:
+                    mid[col0 + x * ny + y] += 1
+    for k in range(ncol):
+        start[k + 1] += start[k]
+        mid[k] += start[k]
+    return start[ncol]
+
+
+@njit(parallel=True, cache=True)
+def _col_hist(cells, order, na, ny, hist):
+    """Parallel column count: chunk k of ``order`` (``hist.shape[0]`` equal chunks) counts its
+    boxes' entries per column (packed columns ``cells``) into ``hist[k, 0]`` (set a) and
+    ``hist[k, 1]`` (set b)."""
+    nch = hist.shape[0]
+    m = order.shape[0]
+    for k in prange(nch):
+        hist[k, :, :] = 0
+        for t in range(k * m // nch, (k + 1) * m // nch):
+            i = order[t]
+            v = cells[i]
+            if v < 0:
+                continue
+            col0 = v >> 8
+            dx = (v >> 4) & 15
+            dy = v & 15
+            b = 0 if i < na else 1
+            for x in range(dx + 1):
+                for y in range(dy + 1):
+                    hist[k, b, col0 + x * ny + y] += 1
+
+
+@njit(parallel=True, cache=True)
+def _col_fill(cells, order, na, ny, hist, ent, flag):
+    """Counting sort of the boxes' column entries (packed columns ``cells``) in ``order`` (by
+    the low end on the sweep axis, so both sets' runs of every column are sorted), chunk k of
+    ``order`` (``hist.shape[0]`` chunks, in parallel) from its positions ``hist[k]`` (of
+    :func:`_col_offsets`; one chunk: the columns' first positions); ``flag``: bit 0 set where
+    the column is the box's first along a0, bit 1 along a1."""
+    nch = hist.shape[0]
+    m = order.shape[0]
+    for k in prange(nch):
+        for t in range(k * m // nch, (k + 1) * m // nch):
+            i = order[t]
+            v = cells[i]
+            if v < 0:
+                continue
+            col0 = v >> 8
+            dx = (v >> 4) & 15
+            dy = v & 15
+            b = 0 if i < na else 1
+            for x in range(dx + 1):
+                for y in range(dy + 1):
+                    col = col0 + x * ny + y
+                    p = hist[k, b, col]
+                    hist[k, b, col] = p + 1
+                    ent[p] = i
+                    flag[p] = (1 if x == 0 else 0) | (2 if y == 0 else 0)
 
 
 @njit(parallel=True, cache=True)
@@ -2187,33 +2334,33 @@ def _run_columns(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out):
     n = lo.shape[0]
     if n == 0:
         return _reserve(out, 0)
-    span = max(float(np.max(hi)) - float(np.min(lo)), float(np.max(lo)) - float(np.min(hi)))
-    if not (np.isfinite(span) and span < 1e150):
-        return _tree_fallback(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out)
     big = _col_work(out, "big", (n,), np.bool_)
-    s, a0, a1, c, o0, o1, nx, ny, nbig = _col_setup(lo, hi, COLUMN_CELL, _COL_BIG_SPAN, big)
+    ok, s, a0, a1, c, o0, o1, nx, ny, nbig = _col_setup(
+        lo, hi, COLUMN_CELL, _COL_BIG_SPAN, big, _col_work(out, "part", (_COL_SETUP_CHUNKS, 10)))
+    if not ok:
+        return _tree_fallback(lo, hi, na, self_mode, prims_a, prims_b, skip_shared, st, out)
     ncol = nx * ny
     start = _col_work(out, "start", (ncol + 1,), np.int64)
     mid = _col_work(out, "mid", (ncol,), np.int64)
     nch = get_num_threads() if n >= _COL_PAR_MIN else 1
+    w = max(prims_a.shape[1], prims_b.shape[1], 3)
+    cells = _col_work(out, "cells", (n,), np.int64)
+    _col_cells(lo, hi, big, a0, a1, c, o0, o1, ny, cells)
+    hist = _col_work(out, "hist", (nch, 2, ncol), np.int64)
+    order = _sweep_order(lo, s, out)
     if nch > 1:
         # the counting sort in chunks, in parallel (same entries in the same order)
-        order = _sweep_order(lo, s, out)
-        hist = _col_work(out, "hist", (nch, 2, ncol), np.int64)
-        _col_hist(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist)
+        _col_hist(cells, order, na, ny, hist)
         nent = _col_offsets(hist, start, mid)
-        ent = _col_work(out, "ent", (nent,), np.int64)
-        flag = _col_work(out, "flag8", (nent,), np.int8)
-        _col_fill_par(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, hist, ent, flag)
     else:
-        nent = _col_count(lo, hi, big, na, a0, a1, c, o0, o1, ny, start, mid)
-        ent = _col_work(out, "ent", (nent,), np.int64)
-        flag = _col_work(out, "flag8", (nent,), np.int8)
-        if nent:
-            order = _sweep_order(lo, s, out)
-            _col_fill(lo, hi, order, big, na, a0, a1, c, o0, o1, ny, start, mid, ent, flag)
+        nent = _col_count(cells, na, ny, start, mid)
+        hist[0, 0] = start[:-1]
+        hist[0, 1] = mid
+    ent = _col_work(out, "ent", (nent,), np.int64)
+    flag = _col_work(out, "flag8", (nent,), np.int8)
+    if nent:
+        _col_fill(cells, order, na, ny, hist, ent, flag)
     B = _col_work(out, "B", (nent, 6))
-    w = max(prims_a.shape[1], prims_b.shape[1], 3)
     V = _col_work(out, "V", (nent, w) if skip_shared else (1, w), np.int64)
     _col_gather(ent, lo, hi, s, a0, a1, na, prims_a, prims_b, skip_shared, B, V)
     args = (B, flag, ent, V, start, mid, na, self_mode, skip_shared, st)

@@ -192,8 +192,11 @@ def _load_module(path: str):
     ``git show REV:behaviors/collision/broadphase.py > before.py``), imported apart."""
     import importlib.util
 
+    import sys
+
     spec = importlib.util.spec_from_file_location("lokigraph_broadphase_ab", path)
     mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # importable by name: numba's cached kernels refer to it
     spec.loader.exec_module(mod)
     return mod
 
