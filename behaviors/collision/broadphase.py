@@ -99,7 +99,8 @@ each axis), so every pair is found exactly once. Boxes crossing more than ``_COL
 columns on an axis (e.g. a large collider triangle) are tested against every box instead. The
 rows come column by column (in pair mode a column's a-b pairs from its a entries, then from its
 b entries): deterministic and independent of the thread count, but in another order than the
-trees'. Columns are swept in parallel in runs of about equal entry counts (two per thread); with
+trees'. Columns are swept in parallel in runs of about equal entry counts (eight per thread,
+dealt one at a time); with
 a :class:`PairBuffer` that has seen a query the sweep runs once, into scratch sized from its
 previous pair count (a run that overflows is swept again), else a count pass comes first.
 Measured on the rolled sheet of ``python -m lokigraph.bench.broadphase`` at 50k triangles
@@ -109,9 +110,12 @@ Measured on the rolled sheet of ``python -m lokigraph.bench.broadphase`` at 50k 
 primitives' space-time rows took 622 ms against 1,081 ms for the trees' builds, space-time
 boxes and queries.
 
-The column count and the counting sort run in chunks of the sorted boxes on all threads from
-16,384 boxes (``_COL_PAR_MIN``: per-chunk column counts, each chunk filling its own runs), the
-same entries in the same order as the serial pass.
+The setup (sweep axis, column side, big boxes, finiteness) runs in a fixed number of chunks of
+the boxes in parallel; the boxes' order along the sweep axis comes from a bucket sort (buckets of
+equal width, each sorted on its own: ``np.argsort(kind="stable")``'s order); every box's columns
+are packed once into one int64. The column count and the counting sort run in chunks of the
+sorted boxes on all threads from 16,384 boxes (``_COL_PAR_MIN``: per-chunk column counts, each
+chunk filling its own runs), the same entries in the same order as one pass.
 
 Canonical pair order
 --------------------
