@@ -231,30 +231,14 @@ def test_fused_block_jacobi_pcg_is_bitwise_the_unfused_loop():
     returns bitwise the iterates, iteration count and residual of the unfused loop
     (bsr_matvec, apply_blocks, _dot), converged and stopped at the cap, on a mesh-like SPD
     block system; and an iterate differs from the start (the comparison can fail)."""
-    import scipy.sparse as sp
-
     from lokigraph.behaviors.solvers.implicit.linear import (invert_blocks, pcg_block_jacobi,
                                                              pcg_block_jacobi_unfused)
+    from test_implicit_forcing import _mesh_system
 
-    rng = np.random.default_rng(9)
-    side = 12
-    n = side * side
-    edges = [(i * side + j, i * side + j + 1) for i in range(side) for j in range(side - 1)]
-    edges += [(i * side + j, (i + 1) * side + j) for i in range(side - 1) for j in range(side)]
-    dense = np.zeros((3 * n, 3 * n))
-    for a, c in edges:  # stiff springs of random directions (rank-one PSD blocks)
-        d = rng.normal(size=3)
-        K = 10.0 ** rng.uniform(0, 4) * np.outer(d, d)
-        for u, w, s in ((a, a, 1), (c, c, 1), (a, c, -1), (c, a, -1)):
-            dense[3 * u:3 * u + 3, 3 * w:3 * w + 3] += s * K
-    dense += np.kron(np.diag(rng.uniform(0.5, 2.0, n)), np.eye(3))
-    A = sp.bsr_matrix(dense, blocksize=(3, 3))
-    A.sort_indices()
-    diag = np.array([np.flatnonzero(A.indices[A.indptr[i]:A.indptr[i + 1]] == i)[0]
-                     + A.indptr[i] for i in range(n)])
+    A, diag, b = _mesh_system(seed=9, side=12)
+    n = b.shape[0]
     inv = np.zeros((n, 3, 3))
     invert_blocks(A.data[diag], inv)
-    b = rng.normal(size=(n, 3))
     for tol, maxit in ((1e-10, 5000), (1e-10, 17)):
         out = []
         for f in (pcg_block_jacobi, pcg_block_jacobi_unfused):

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def _mesh_system(seed=9, side=12):
     """A mesh-like SPD block system (stiff springs of random directions plus a mass term),
-    as tests/test_implicit.py builds it for the fused PCG."""
+    for the fused PCG (tests/test_implicit.py too)."""
     import scipy.sparse as sp
 
     rng = np.random.default_rng(seed)

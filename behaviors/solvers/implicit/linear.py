@@ -83,79 +83,16 @@ def pcg_block_jacobi(indptr, indices, data, inv, b, tol, maxit, x, r, z, p, Ap):
     (p . Ap summed as A p is formed, r . r as r is updated, r . z as z is formed), each sum in
     the order of ``_dot``: the iterates are bitwise those of the unfused loop
     (``bsr_matvec``, ``apply_blocks``, ``_dot``), in 3 passes over the vectors per iteration
-    instead of 7 (the matrix is read once either way)."""
-    n = b.shape[0]
-    bb = 0.0
-    for i in range(n):
-        for a in range(3):
-            x[i, a] = 0.0
-            r[i, a] = b[i, a]
-        bb += b[i, 0] * b[i, 0] + b[i, 1] * b[i, 1] + b[i, 2] * b[i, 2]
-    bn = math.sqrt(bb)
-    if bn == 0.0:
-        return 0, 0.0
-    rz = 0.0
-    for i in range(n):
-        r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
-        z0 = inv[i, 0, 0] * r0 + inv[i, 0, 1] * r1 + inv[i, 0, 2] * r2
-        z1 = inv[i, 1, 0] * r0 + inv[i, 1, 1] * r1 + inv[i, 1, 2] * r2
-        z2 = inv[i, 2, 0] * r0 + inv[i, 2, 1] * r1 + inv[i, 2, 2] * r2
-        p[i, 0], p[i, 1], p[i, 2] = z0, z1, z2
-        rz += r0 * z0 + r1 * z1 + r2 * z2
-    it = 0
-    rn = bn
-    while it < maxit:
-        pAp = 0.0
-        for i in range(n):
-            y0 = 0.0
-            y1 = 0.0
-            y2 = 0.0
-            for q in range(indptr[i], indptr[i + 1]):
-                j = indices[q]
-                x0 = p[j, 0]
-                x1 = p[j, 1]
-                x2 = p[j, 2]
-                y0 += data[q, 0, 0] * x0 + data[q, 0, 1] * x1 + data[q, 0, 2] * x2
-                y1 += data[q, 1, 0] * x0 + data[q, 1, 1] * x1 + data[q, 1, 2] * x2
-                y2 += data[q, 2, 0] * x0 + data[q, 2, 1] * x1 + data[q, 2, 2] * x2
-            Ap[i, 0] = y0
-            Ap[i, 1] = y1
-            Ap[i, 2] = y2
-            pAp += p[i, 0] * y0 + p[i, 1] * y1 + p[i, 2] * y2
-        if pAp <= 0.0:
-            break
-        al = rz / pAp
-        rr = 0.0
-        for i in range(n):
-            for a in range(3):
-                x[i, a] += al * p[i, a]
-                r[i, a] -= al * Ap[i, a]
-            rr += r[i, 0] * r[i, 0] + r[i, 1] * r[i, 1] + r[i, 2] * r[i, 2]
-        it += 1
-        rn = math.sqrt(rr)
-        if rn <= tol * bn:
-            break
-        rz_new = 0.0
-        for i in range(n):
-            r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
-            z0 = inv[i, 0, 0] * r0 + inv[i, 0, 1] * r1 + inv[i, 0, 2] * r2
-            z1 = inv[i, 1, 0] * r0 + inv[i, 1, 1] * r1 + inv[i, 1, 2] * r2
-            z2 = inv[i, 2, 0] * r0 + inv[i, 2, 1] * r1 + inv[i, 2, 2] * r2
-            z[i, 0], z[i, 1], z[i, 2] = z0, z1, z2
-            rz_new += r0 * z0 + r1 * z1 + r2 * z2
-        beta = rz_new / rz
-        rz = rz_new
-        for i in range(n):
-            for a in range(3):
-                p[i, a] = z[i, a] + beta * p[i, a]
-    return it, rn / bn
+    instead of 7 (the matrix is read once either way). The loop is that of
+    :func:`pcg_block_jacobi_after` with its second stop test never taken."""
+    return pcg_block_jacobi_after(indptr, indices, data, inv, b, tol, maxit + 1, 0.0, maxit, x, r,
+                                  z, p, Ap)
 
 
 @njit(cache=True)
 def pcg_block_jacobi_after(indptr, indices, data, inv, b, tol, after, loose, maxit, x, r, z, p,
                            Ap):
-    """The PCG of :func:`pcg_block_jacobi` (the same iterates, fused the same way) with a
-    second stop test: from iteration ``after`` on it also stops at |r| <= loose |b| (the
+    """The fused PCG loop of :func:`pcg_block_jacobi`, with a second stop test: from iteration ``after`` on it also stops at |r| <= loose |b| (the
     forcing term of ``cg_forcing_after``); a solve that meets ``tol`` within ``after``
     iterations is bitwise that of :func:`pcg_block_jacobi` with ``tol``. Returns
     (iterations, relative residual)."""
