@@ -1711,11 +1711,12 @@ def _rows_cover(c, x, p, frac) -> bool:
     if ref is None or ref.shape != p.shape:
         return False
     _set_infl_min(c)
-    d_max = 0.0
-    for t in (c.vf_target, c.ee_target):
-        if len(t):
-            d_max = max(d_max, frac * float(t.max()))
-    return _max_move(ref, p) <= c.infl_min - 0.5 * d_max
+    return _max_move(ref, p) <= c.infl_min - 0.5 * frac * _target_max(c)
+
+
+def _target_max(c) -> float:
+    """The largest target [m] of the packed rows, at least 0 (0 when there are none)."""
+    return max([0.0] + [float(t.max()) for t in (c.vf_target, c.ee_target) if len(t)])
 
 
 @njit(cache=True)
@@ -1742,11 +1743,7 @@ def _rows_hold(c, x, p) -> bool:
     detections) come from swept boxes; for space-time rows (``SPACETIME_PREDICTED``) it would
     be a heuristic: a missing self pair is only far apart along the linear motion."""
     _set_infl_min(c)
-    t = 0.0
-    for a in (c.vf_target, c.ee_target):
-        if len(a):
-            t = max(t, float(a.max()))
-    return _box_excess(x, c.det_ref, p) <= c.infl_min - 0.5 * t
+    return _box_excess(x, c.det_ref, p) <= c.infl_min - 0.5 * _target_max(c)
 
 
 def _relative_setup(c, v, h, slack):
@@ -2109,10 +2106,7 @@ def _ccd_incremental(c, work, x, p, v, h, frac):
         if (g.recover & ~g.one_sided).any():
             return None  # its filter pass updates the side memory: detect in full
     _set_infl_min(c)
-    d_max = 0.0
-    for t in (c.vf_target, c.ee_target):
-        if len(t):
-            d_max = max(d_max, frac * float(t.max()))
+    d_max = frac * _target_max(c)
     for g in c.groups:  # the new rows' targets are at most their thicknesses' sum
         if len(g.verts):
             d_max = max(d_max, 2.0 * frac * float(np.maximum(g.th_out, g.th_in)[g.verts].max()))
@@ -2239,11 +2233,11 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
         he = _ccd_hits(work, c.ee, c.ee_n, c.ee_target, False, x, p, frac)
         return hv, he
 
-    if not _rows_cover(c, x, p, frac) and CCD_INCREMENTAL > 0.0 \
-            and _ccd_incremental(c, work, x, p, v, h, frac):
+    cover = _rows_cover(c, x, p, frac)
+    if not cover and CCD_INCREMENTAL > 0.0 and _ccd_incremental(c, work, x, p, v, h, frac):
         st["ccd_incremental"] = st.get("ccd_incremental", 0) + 1
         return st  # no hit: a full detection would find none either
-    hv, he = hits(not _rows_cover(c, x, p, frac))
+    hv, he = hits(not cover)
     st["ccd_hits"] = st.get("ccd_hits", 0) + len(hv[0]) + len(he[0])
     for _ in range(rounds):
         if not len(hv[0]) and not len(he[0]):

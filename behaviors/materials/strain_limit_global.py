@@ -278,17 +278,24 @@ class GlobalStrainStep:
         return edge_rows(p, w, self.edges, self.limit, self.sel, -np.inf, tol, self.e_idx,
                          self.e_c, self.e_n)[1]
 
-    def _contact_set(self, p, w, contacts, kinds, margin, collider_only):
-        """The contact rows (see ``contact_rows``) of every kind, concatenated."""
+    def _contact_set(self, p, w, contacts, kinds, margin, collider_only, sub=None):
+        """The contact rows (see ``contact_rows``) of every kind, concatenated; with ``sub``
+        (``_collider_subsets``, with collider_only) read from those subsets (the same rows, in
+        the same order)."""
         cs = []
         for k in kinds:
             cb = self._contacts(contacts, k)
-            nr = len(getattr(contacts, k))
-            nk = contact_rows(p, w, getattr(contacts, k), getattr(contacts, k + "_n"),
-                              getattr(contacts, k + "_target"),
-                              contacts.vf_onesided if k == "vf" else cb[4][:nr],
-                              k == "vf", cb[4][:nr], cb[0], cb[1], cb[2], cb[3], margin,
-                              collider_only)
+            if sub is None:
+                nr = len(getattr(contacts, k))
+                rows, nrm, tgt = (getattr(contacts, k), getattr(contacts, k + "_n"),
+                                  getattr(contacts, k + "_target"))
+                keep = cb[4][:nr]
+                one = contacts.vf_onesided if k == "vf" else keep
+            else:
+                rows, nrm, tgt, one, keep = sub[k]
+                keep[:] = False
+            nk = contact_rows(p, w, rows, nrm, tgt, one, k == "vf", keep, cb[0], cb[1], cb[2],
+                              cb[3], margin, collider_only)
             if nk:
                 cs.append((cb[0][:nk], cb[1][:nk], cb[2][:nk], cb[3][:nk]))
         if not cs:
@@ -309,22 +316,6 @@ class GlobalStrainStep:
                       np.ascontiguousarray(getattr(contacts, k + "_target")[s]),
                       np.ascontiguousarray(one), np.zeros(len(s), np.bool_))
         return out
-
-    def _collider_set(self, p, w, contacts, kinds, sub):
-        """``_contact_set(p, w, contacts, kinds, 1.0, True)`` over the subsets of
-        ``_collider_subsets`` (the same rows, in the same order)."""
-        cs = []
-        for k in kinds:
-            cb = self._contacts(contacts, k)
-            rows, nrm, tgt, one, keep = sub[k]
-            keep[:] = False
-            nk = contact_rows(p, w, rows, nrm, tgt, one, k == "vf", keep, cb[0], cb[1], cb[2],
-                              cb[3], 1.0, True)
-            if nk:
-                cs.append((cb[0][:nk], cb[1][:nk], cb[2][:nk], cb[3][:nk]))
-        if not cs:
-            return np.zeros(0), np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros((0, 3))
-        return tuple(np.concatenate([x[i] for x in cs]) for i in range(4))
 
     def _weighted(self, J, Wb):
         """J W: the rows' Jacobian times the inverse masses (``Wb`` the block matrix where the
@@ -645,7 +636,7 @@ class GlobalStrainStep:
             elif pivots:  # rows, as one LCP with the edges, factorised every pass
                 # one row per vertex in contact with a collider: its most closed contact's
                 # outward normal n, -(C + n . u) <= 0 with a multiplier >= 0 (pushing)
-                cc, cv, ccf, cn = self._collider_set(p, w, contacts, kinds, sub)
+                cc, cv, ccf, cn = self._contact_set(p, w, contacts, kinds, 1.0, True, sub)
                 if self._nrm is None or len(self._nrm) != len(w):
                     self._nrm = np.zeros((len(w), 3))
                     self._vbest = np.zeros(len(w))
