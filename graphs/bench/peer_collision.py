@@ -70,6 +70,19 @@ if str(ROOT) not in sys.path:
 
 BENCH = ROOT / "graphs" / "bench"
 SCENES = {n: BENCH / f"cloth_sphere_{n}.yaml" for n in (32, 64, 128)}
+SIZES = (32, 64, 128, 256)  # --sizes: 256 is cloth_sphere_128.yaml at 256 x 256 (_scene_path)
+
+
+def _scene_path(n: int, folder: Path) -> Path:
+    """The static scene at ``n`` x ``n``: its YAML, else ``cloth_sphere_128.yaml`` with the
+    cloth's resolution replaced, written into ``folder``."""
+    if n in SCENES:
+        return SCENES[n]
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"cloth_sphere_{n}.yaml"
+    path.write_text(SCENES[128].read_text().replace("resolution: [128, 128]",
+                                                     f"resolution: [{n}, {n}]"))
+    return path
 MOVING = BENCH / "cloth_sphere_moving_128.yaml"
 # (substeps, iterations); the scene default is 2 x 15 (graph default iterations)
 LOKI_SETTINGS = [(1, 15), (2, 15), (4, 15)]
@@ -199,6 +212,7 @@ def install_stages(n_cloth: int):
     from lokigraph.behaviors.collision import broadphase as bp
     from lokigraph.behaviors.collision import contacts as C
 
+    install_stages.n_cloth[0] = n_cloth  # changeable later (--sizes: one scene after another)
     if getattr(C, "__stages_installed__", False):
         return
     C.__stages_installed__ = True
@@ -237,7 +251,8 @@ def install_stages(n_cloth: int):
     def count_rows(d, *_):
         for kind in ("vf", "ee"):
             rows = getattr(d, kind)
-            ball = int(np.count_nonzero((rows >= n_cloth).any(axis=1))) if len(rows) else 0
+            ball = (int(np.count_nonzero((rows >= install_stages.n_cloth[0]).any(axis=1)))
+                    if len(rows) else 0)
             for nm, v in (("self", len(rows) - ball), ("ball", ball)):
                 key = f"r_{_STAGE[0]}.{kind}_{nm}"
                 _PROF[key] = _PROF.get(key, 0) + v
@@ -267,6 +282,9 @@ def install_stages(n_cloth: int):
     staged(C.CollisionConstraint, "project", "iter")
     staged(C.CollisionConstraint, "finalize", "final")
     staged(C.CollisionConstraint, "after_finalize", "ccd")
+
+
+install_stages.n_cloth = [0]
 
 
 def stages_table(rows, n_cloth: int, frames=None) -> str:
@@ -745,7 +763,9 @@ def _flags(spec: str) -> dict:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128], choices=sorted(SCENES))
+    ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128], choices=SIZES,
+                    help="cloth resolutions; with several and --stages, also the fitted "
+                    "exponent p of CPU ms/frame ~ vertices^p over the --stage-frames")
     ap.add_argument("--frames", type=int, default=None, help="frames per run (default: scene's)")
     ap.add_argument("--loki", default=None, help="lokigraph settings SUBxITER[@THREADS]"
                     "[+NODE.PARAM=VALUE...],... (graph overrides, e.g. "
@@ -860,8 +880,13 @@ def main(argv=None):
             print()
             print(stages_table(rows, len(scenes[0].cloth_q0), sf))
     else:
+        if args.stages:
+            install_stages(0)  # rows are counted per cloth vertex per size below
+        fit = []
         for n in args.sizes:
-            sc = ClothSphere(SCENES[n])
+            sc = ClothSphere(_scene_path(n, out_dir))
+            if args.stages:
+                install_stages.n_cloth[0] = len(sc.cloth_q0)
             frames = args.frames or sc.frames
             runs = [LokiRun(sc, *st[:2], threads=st[2] if len(st) > 2 else None, overrides=ov)
                     for st, ov in zip(loki, extra)]
@@ -883,6 +908,24 @@ def main(argv=None):
             for r in rows:
                 r["ratio"] = (r["cpu_ms"] / best) if best and r.get("cpu_ms") else None
             all_rows += rows
+            if args.stages:
+                loki_rows = [r for r in rows if r["framework"] == "lokigraph"]
+                sf = range(args.stage_frames[0], args.stage_frames[1] + 1) \
+                    if args.stage_frames else None
+                print(f"\nstages at {n} x {n} ({len(sc.cloth_q0)} cloth vertices):")
+                print(stages_table(loki_rows, len(sc.cloth_q0), sf), flush=True)
+                for r in loki_rows:
+                    pf = r["per_frame"][1:] if sf is None else [
+                        r["per_frame"][f - 1] for f in sf if f <= len(r["per_frame"])]
+                    fit.append((r["setting"], len(sc.cloth_q0),
+                                float(np.mean([v["cpu_ms"] for v in pf]))))
+        for setting in dict.fromkeys(f[0] for f in fit):
+            pts = [(nv, ms) for st, nv, ms in fit if st == setting]
+            if len(pts) > 1:
+                p = np.polyfit(np.log([x[0] for x in pts]), np.log([x[1] for x in pts]), 1)[0]
+                print(f"\n{setting}: CPU ms/frame (mean over the stage frames) "
+                      + ", ".join(f"{nv} vertices {ms:.0f}" for nv, ms in pts)
+                      + f"; fitted exponent p = {p:.2f} (least squares, log ms vs log vertices)")
 
     md = table(all_rows)
     if args.moving:
