@@ -96,10 +96,18 @@ def _boxes(Xa, Xb, verts, E, F, thick, boxes):
 
 def _grid_pairs(verts, E, F, boxes, buf_vf, buf_ee):
     """The column grid's self VF and EE candidates of ``boxes``."""
+    return _vf_ee(bp, verts, E, F, boxes, buf_vf, buf_ee)
+
+
+def _vf_ee(m, verts, E, F, boxes, buf_vf, buf_ee):
+    """Both queries of the broad-phase module ``m``: side by side (``column_queries``) where it
+    has them, else one after the other."""
     lo_v, hi_v, lo_e, hi_e, lo_f, hi_f = boxes
-    vf = bp.column_query_pairs(lo_v, hi_v, lo_f, hi_f, verts, F, out=buf_vf)
-    ee = bp.column_query_self(lo_e, hi_e, E, out=buf_ee)
-    return vf, ee
+    vf_q = (m.column_query_pairs, (lo_v, hi_v, lo_f, hi_f, verts, F), {"out": buf_vf})
+    ee_q = (m.column_query_self, (lo_e, hi_e, E), {"out": buf_ee})
+    if hasattr(m, "column_queries"):
+        return tuple(m.column_queries(vf_q, ee_q))
+    return tuple(fn(*a, **k) for fn, a, k in (vf_q, ee_q))
 
 
 def bench_one(n_tri: int, repeats: int):
@@ -228,8 +236,7 @@ def ab_grid(n_tri: int, repeats: int, settings: str = "", module: str = ""):
         m.primitive_boxes(X1, verts, X2, thick, lo_v, hi_v)
         m.primitive_boxes(X1, E, X2, thick, lo_e, hi_e)
         m.primitive_boxes(X1, F, X2, thick, lo_f, hi_f)
-        vf = m.column_query_pairs(lo_v, hi_v, lo_f, hi_f, verts, F, out=bufs[a][0])
-        ee = m.column_query_self(lo_e, hi_e, E, out=bufs[a][1])
+        vf, ee = _vf_ee(m, verts, E, F, boxes, bufs[a][0], bufs[a][1])
         return time.process_time() - c0, time.perf_counter() - w0, vf, ee
 
     try:
