@@ -1744,6 +1744,16 @@ _COL_PAR_MIN = 16384
 #: column are read nearly in order already, neighbours along the sweep axis being neighbours
 #: in the mesh); the sweep along another axis than the centres' widest spread (1.57x and
 #: 1.37x at 1 thread)
+#:
+#: Then (``bench broadphase --ab-module`` against d9a0fdc's module, 25 rounds, load 5-6, the
+#: same rows in the same order): the setup's mean extents and the sort keys' range in its
+#: first pass, the packed columns in the bucket sort's counting pass (two parallel passes over
+#: the boxes fewer a query): CPU ratio 0.97-0.98 at 1 thread, 0.97-0.99 at 2.
+#: ``COLUMN_SIDE_BY_SIDE`` (``column_queries``, VF and EE side by side) against one after the
+#: other at 2 threads, load 5.4-5.9 (``--ab-grid COLUMN_SIDE_BY_SIDE=True``, three runs): 5-10 %
+#: less CPU (no spinning at the barriers, no scratch copy), but the wall time went both ways
+#: (median per-round wall ratio side by side / one after the other 0.92, 1.14, 1.97: a thread
+#: held up by the machine holds up its whole query), so it stays opt-in until measured idle.
 COLUMN_SLOTS_PER_THREAD = 8
 
 

@@ -73,15 +73,23 @@ SCENES = {n: BENCH / f"cloth_sphere_{n}.yaml" for n in (32, 64, 128)}
 SIZES = (32, 64, 128, 256)  # --sizes: 256 is cloth_sphere_128.yaml at 256 x 256 (_scene_path)
 
 
-def _scene_path(n: int, folder: Path) -> Path:
+def _scene_path(n: int, folder: Path, cloth_thickness: float | None = None) -> Path:
     """The static scene at ``n`` x ``n``: its YAML, else ``cloth_sphere_128.yaml`` with the
-    cloth's resolution replaced, written into ``folder``."""
-    if n in SCENES:
+    cloth's resolution replaced, written into ``folder``; with ``cloth_thickness``, the cloth's
+    collider thickness [m] replaced too (at 256 x 256 the scenes' 2 mm makes a contact distance
+    of 4 mm, over the 3.9 mm edge: the flat cloth is in self-contact at rest)."""
+    if n in SCENES and cloth_thickness is None:
         return SCENES[n]
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"cloth_sphere_{n}.yaml"
-    path.write_text(SCENES[128].read_text().replace("resolution: [128, 128]",
-                                                     f"resolution: [{n}, {n}]"))
+    text = SCENES[128].read_text().replace("resolution: [128, 128]", f"resolution: [{n}, {n}]")
+    name = f"cloth_sphere_{n}.yaml"
+    if cloth_thickness is not None:
+        old = "Collider: {thickness: 0.002, friction: 0.3}"
+        assert old in text, "cloth_sphere_128.yaml: the cloth's collider line changed"
+        text = text.replace(old, f"Collider: {{thickness: {cloth_thickness!r}, friction: 0.3}}")
+        name = f"cloth_sphere_{n}_t{cloth_thickness:g}.yaml"
+    path = folder / name
+    path.write_text(text)
     return path
 MOVING = BENCH / "cloth_sphere_moving_128.yaml"
 # (substeps, iterations); the scene default is 2 x 15 (graph default iterations)
@@ -767,6 +775,9 @@ def main(argv=None):
                     help="cloth resolutions; with several and --stages, also the fitted "
                     "exponent p of CPU ms/frame ~ vertices^p over the --stage-frames")
     ap.add_argument("--frames", type=int, default=None, help="frames per run (default: scene's)")
+    ap.add_argument("--cloth-thickness", type=float, default=None, metavar="M",
+                    help="--sizes: the cloth's collider thickness [m] instead of the scenes' "
+                    "2 mm (e.g. 0.0015: a contact distance under the 256 x 256 edge)")
     ap.add_argument("--loki", default=None, help="lokigraph settings SUBxITER[@THREADS]"
                     "[+NODE.PARAM=VALUE...],... (graph overrides, e.g. "
                     "2x15+collisions.final_rounds=1; default "
@@ -884,7 +895,7 @@ def main(argv=None):
             install_stages(0)  # rows are counted per cloth vertex per size below
         fit = []
         for n in args.sizes:
-            sc = ClothSphere(_scene_path(n, out_dir))
+            sc = ClothSphere(_scene_path(n, out_dir, args.cloth_thickness))
             if args.stages:
                 install_stages.n_cloth[0] = len(sc.cloth_q0)
             frames = args.frames or sc.frames
