@@ -77,7 +77,8 @@ def _scene_path(n: int, folder: Path, cloth_thickness: float | None = None) -> P
     """The static scene at ``n`` x ``n``: its YAML, else ``cloth_sphere_128.yaml`` with the
     cloth's resolution replaced, written into ``folder``; with ``cloth_thickness``, the cloth's
     collider thickness [m] replaced too (at 256 x 256 the scenes' 2 mm makes a contact distance
-    of 4 mm, over the 3.9 mm edge: the flat cloth is in self-contact at rest)."""
+    of 4 mm, over the 3.9 mm edge and the 2.8 mm from a vertex to the nearest triangle without
+    it: the flat cloth is in self-contact at rest)."""
     if n in SCENES and cloth_thickness is None:
         return SCENES[n]
     folder.mkdir(parents=True, exist_ok=True)
@@ -777,7 +778,8 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=None, help="frames per run (default: scene's)")
     ap.add_argument("--cloth-thickness", type=float, default=None, metavar="M",
                     help="--sizes: the cloth's collider thickness [m] instead of the scenes' "
-                    "2 mm (e.g. 0.0015: a contact distance under the 256 x 256 edge)")
+                    "2 mm (e.g. 0.001: a 2 mm contact distance, under the 2.8 mm from a vertex "
+                    "to the nearest triangle without it at 256 x 256)")
     ap.add_argument("--loki", default=None, help="lokigraph settings SUBxITER[@THREADS]"
                     "[+NODE.PARAM=VALUE...],... (graph overrides, e.g. "
                     "2x15+collisions.final_rounds=1; default "
