@@ -9,11 +9,16 @@ turn in one process (machine load hits all alike):
   hard in compression);
 * ``in_contact_hard``: that plus ``strain_limit: {inextensible_max_strain: 0.05,
   inextensible_joint_iterations: 10}`` (edges hard in compression);
-* ``defaults``: that plus ``stretch: {inextensible_compression: 10}`` (edges near contacts
-  compliant in compression; the opt-in 'in_contact' before it became the defaults);
+* ``before_global``: that plus ``stretch: {inextensible_compression: 10}`` (edges near contacts
+  compliant in compression; the opt-in 'in_contact' before it became the defaults): the
+  defaults of stop 27, before the global strain step;
+* ``defaults``: the defaults now: the 1 % limit with 3 joint passes and the global strain step
+  once a frame (setting B of strain_limit.py's global_chord);
 * ``defaults+redetect``: that plus ``collisions: {redetect: true}``;
-* ``tight``: the defaults with ``stretch: {joint_long_range: true}``, ``strain_limit:
+* ``tight``: ``before_global`` with ``stretch: {joint_long_range: true}``, ``strain_limit:
   {inextensible_max_strain: 0.02, inextensible_joint_iterations: 40}``.
+
+``--abba`` runs every setting twice, the repeats in reverse order.
 
 Run::
 
@@ -91,17 +96,24 @@ BEFORE = {"stretch": {"long_range_levels": 0, "sweeps": 1, "inextensible_compres
           "strain_limit": {"inextensible_max_strain": None}}
 LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3, "inextensible_compression": None},
               "strain_limit": {"inextensible_max_strain": None}}
-IN_CONTACT_HARD = {"stretch": {"inextensible_compression": None}}
-#: the defaults now (the former opt-in 'in_contact'): long-range rows 5 levels, 3 sweeps, the
-#: 5 % inextensible strain limit with 10 joint passes, edges near contacts compliant in
-#: compression at 10 N/m
+#: the defaults before the global strain step became one (stop 27): the 5 % inextensible
+#: strain limit with 10 joint passes, Gauss-Seidel only (bitwise: without global_passes the
+#: step's other parameters are never read)
+BEFORE_GLOBAL = {"strain_limit": {"inextensible_max_strain": 0.05,
+                                  "inextensible_joint_iterations": 10, "global_passes": 0}}
+IN_CONTACT_HARD = {"stretch": {"inextensible_compression": None}, **BEFORE_GLOBAL}
+#: the defaults now: long-range rows 5 levels, 3 sweeps, edges near contacts compliant in
+#: compression at 10 N/m (the former opt-in 'in_contact'); the 1 % inextensible strain limit
+#: with 3 joint passes and the global step once a frame (setting B of strain_limit.py's
+#: global_chord)
 DEFAULTS = {}
 REDETECT = {"collisions": {"redetect": True}}
 TIGHT = {"stretch": {"joint_long_range": True},
-         "strain_limit": {"inextensible_max_strain": 0.02, "inextensible_joint_iterations": 40}}
+         "strain_limit": {"inextensible_max_strain": 0.02, "inextensible_joint_iterations": 40,
+                          "global_passes": 0}}
 SETTINGS = [("before", BEFORE), ("long_range", LONG_RANGE),
-            ("in_contact_hard", IN_CONTACT_HARD), ("defaults", DEFAULTS),
-            ("defaults+redetect", REDETECT), ("tight", TIGHT)]
+            ("in_contact_hard", IN_CONTACT_HARD), ("before_global", BEFORE_GLOBAL),
+            ("defaults", DEFAULTS), ("defaults+redetect", REDETECT), ("tight", TIGHT)]
 SCENES = ("cloth_on_sphere", "skirt_walk", "sleeve_elbow", "cloth_pinned", "flag_wind")
 
 
@@ -160,7 +172,7 @@ def _parse_set(items):
     return out
 
 
-def scenes_table(names, frames, extras, only=None):
+def scenes_table(names, frames, extras, only=None, abba=False):
     print("| scene | setting | worst strain % | frame | last % | max pen | CPU ms/frame | "
           "wall ms/frame | CPU ms/frame, 2nd half |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -172,6 +184,8 @@ def scenes_table(names, frames, extras, only=None):
             for extra in extras:
                 settings.append((" ".join(f"{n}.{k}={v}" for n, p in extra.items()
                                           for k, v in p.items()), extra))
+            if abba:  # each setting again, in reverse order
+                settings += [(lbl + " (repeat)", ov) for lbl, ov in settings[::-1]]
             files = [_variant(path, ov, Path(tmp)) for _, ov in settings]
             runs = [_Run(lbl, f) for (lbl, _), f in zip(settings, files)]
             for _ in range(frames):
@@ -517,6 +531,8 @@ def main(argv=None):
                     help="an extra setting NODE.PARAM=VALUE ... (repeat --set for more)")
     ap.add_argument("--peer", type=int, nargs="*", help="peer collision scene sizes")
     ap.add_argument("--only", nargs="*", help="only these of the built-in settings")
+    ap.add_argument("--abba", action="store_true", help="each setting run twice, the repeats "
+                    "in reverse order (A B B A), stepped in turn frame by frame")
     ap.add_argument("--stages", metavar="SCENE", help="worst strain after each stage of the "
                     "substeps, per frame, at the defaults (or the first --set)")
     ap.add_argument("--passes", metavar="SCENE", help="the global step's passes per frame "
@@ -538,7 +554,7 @@ def main(argv=None):
     elif args.peer:
         peer(args.peer, args.frames, args.only)
     else:
-        scenes_table(args.scenes, args.frames, extras, args.only)
+        scenes_table(args.scenes, args.frames, extras, args.only, args.abba)
 
 
 if __name__ == "__main__":
