@@ -9,14 +9,15 @@ turn in one process (machine load hits all alike):
   hard in compression);
 * ``in_contact_hard``: that plus ``strain_limit: {inextensible_max_strain: 0.05,
   inextensible_joint_iterations: 10}`` (edges hard in compression);
-* ``before_global``: that plus ``stretch: {inextensible_compression: 10}`` (edges near contacts
-  compliant in compression; the opt-in 'in_contact' before it became the defaults): the
-  defaults of stop 27, before the global strain step;
-* ``defaults``: the defaults now: the 1 % limit with 3 joint passes and the global strain step
-  once a frame (setting B of strain_limit.py's global_chord);
+* ``defaults``: that plus ``stretch: {inextensible_compression: 10}`` (edges near contacts
+  compliant in compression; the opt-in 'in_contact' before it became the defaults);
 * ``defaults+redetect``: that plus ``collisions: {redetect: true}``;
-* ``tight``: ``before_global`` with ``stretch: {joint_long_range: true}``, ``strain_limit:
+* ``tight``: the defaults with ``stretch: {joint_long_range: true}``, ``strain_limit:
   {inextensible_max_strain: 0.02, inextensible_joint_iterations: 40}``.
+
+* ``B``: setting B of strain_limit.py's global_chord (opt-in): the 1 % limit with 3 joint
+  passes and the global strain step once a frame ('rows', 2 pivots, 40 sweeps, fast LU, chord
+  passes).
 
 ``--abba`` runs every setting twice, the repeats in reverse order.
 
@@ -96,24 +97,29 @@ BEFORE = {"stretch": {"long_range_levels": 0, "sweeps": 1, "inextensible_compres
           "strain_limit": {"inextensible_max_strain": None}}
 LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3, "inextensible_compression": None},
               "strain_limit": {"inextensible_max_strain": None}}
-#: the defaults before the global strain step became one (stop 27): the 5 % inextensible
-#: strain limit with 10 joint passes, Gauss-Seidel only (bitwise: without global_passes the
-#: step's other parameters are never read)
+#: the strain-limit defaults, explicit: the 5 % inextensible strain limit with 10 joint
+#: passes, Gauss-Seidel only (without global_passes the step's other parameters are never read)
 BEFORE_GLOBAL = {"strain_limit": {"inextensible_max_strain": 0.05,
                                   "inextensible_joint_iterations": 10, "global_passes": 0}}
 IN_CONTACT_HARD = {"stretch": {"inextensible_compression": None}, **BEFORE_GLOBAL}
-#: the defaults now: long-range rows 5 levels, 3 sweeps, edges near contacts compliant in
-#: compression at 10 N/m (the former opt-in 'in_contact'); the 1 % inextensible strain limit
-#: with 3 joint passes and the global step once a frame (setting B of strain_limit.py's
-#: global_chord)
+#: the defaults now (the former opt-in 'in_contact'): long-range rows 5 levels, 3 sweeps, the
+#: 5 % inextensible strain limit with 10 joint passes, edges near contacts compliant in
+#: compression at 10 N/m
 DEFAULTS = {}
+#: setting B of strain_limit.py's global_chord (opt-in): the 1 % limit with 3 joint passes and
+#: the global strain step once a frame
+B = {"strain_limit": {"inextensible_max_strain": 0.01, "inextensible_joint_iterations": 3,
+                      "global_passes": 20, "global_near": 0.005, "global_contacts": "rows",
+                      "global_tolerance": 0.005, "global_pivots": 2, "global_every": "frame",
+                      "global_smooth": 40, "global_alpha": 1e-4, "global_fast_lu": True,
+                      "global_chord": 3, "global_chord_rate": 0.8}}
 REDETECT = {"collisions": {"redetect": True}}
 TIGHT = {"stretch": {"joint_long_range": True},
          "strain_limit": {"inextensible_max_strain": 0.02, "inextensible_joint_iterations": 40,
                           "global_passes": 0}}
 SETTINGS = [("before", BEFORE), ("long_range", LONG_RANGE),
-            ("in_contact_hard", IN_CONTACT_HARD), ("before_global", BEFORE_GLOBAL),
-            ("defaults", DEFAULTS), ("defaults+redetect", REDETECT), ("tight", TIGHT)]
+            ("in_contact_hard", IN_CONTACT_HARD), ("defaults", DEFAULTS),
+            ("defaults+redetect", REDETECT), ("tight", TIGHT), ("B", B)]
 SCENES = ("cloth_on_sphere", "skirt_walk", "sleeve_elbow", "cloth_pinned", "flag_wind")
 
 
