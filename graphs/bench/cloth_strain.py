@@ -19,7 +19,14 @@ turn in one process (machine load hits all alike):
   passes and the global strain step once a frame ('rows', 2 pivots, 40 sweeps, fast LU, chord
   passes).
 
-``--abba`` runs every setting twice, the repeats in reverse order.
+``--abba`` runs every setting twice, the repeats in reverse order. Measured (stop 28, one run
+per line, NUMBA_NUM_THREADS=1, load 5-6 on 2 cores; ``--frames 24 --scenes cloth_on_sphere
+skirt_walk sleeve_elbow --only defaults B --abba``, then ``--frames 12 --scenes
+graphs/bench/cloth_sphere_64.yaml``), worst strain and CPU ms per frame over the second half,
+defaults / B (each the mean of its two runs): cloth_on_sphere 6.63 / 1.50 %, 498 / 669 ms
+(1.34x); skirt_walk 5.00 / 1.41 %, 54 / 55 ms (1.01x); sleeve_elbow 23.91 / 33.47 %, 339 / 371
+ms (1.09x; 244 / 233 intersecting pairs); cloth_sphere_64 (12 frames) 6.63 / 1.50 %, 645 / 804
+ms (1.25x; medians over frames 2-12 285 / 425 ms, 1.49x). No penetrations on the drops.
 
 Run::
 
