@@ -222,8 +222,8 @@ def test_pivoted_rows_step_holds_the_64_drop(tmp_path):
                 global_near=0.0, global_pivots=0, **OLD)
     s0, _, _ = _drop(tmp_path, 10, **base)
     assert s0.max() > 0.015
-    s, d, pen = _drop(tmp_path, 10, **base, global_contacts="rows", global_near=0.02,
-                      global_pivots=10)
+    s, d, pen = _drop(tmp_path, 10, **{**base, "global_contacts": "rows", "global_near": 0.02,
+                                       "global_pivots": 10})
     assert s.max() < 0.0115
     assert (d > 0.0).all() and (pen == 0).all()
 
