@@ -17,7 +17,7 @@ from lokigraph.api import compile_file
 from lokigraph.behaviors.collision.intersect import intersect_meshes
 from lokigraph.run import Simulation
 
-MAPS = ("elbow_upper_soft.npy", "elbow_forearm_soft.npy")
+MAPS = ("elbow_upper_soft.npy", "elbow_forearm_soft.npy", "sleeve_elbow_sleeve.obj")
 ARM = ("upper_arm", "forearm", "elbow")
 
 # Speed bounds from the animation: the forearm turns 140 degrees in 24 frames at 24 fps, i.e.

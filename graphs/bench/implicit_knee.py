@@ -101,7 +101,8 @@ SCENES = {
     "knee": ("trouser_knee.yaml", (), "trouser", ("thigh", "shin", "knee"), 72),
     "pinch": ("pinch.yaml", ("lid_soft.npy",), "cloth", ("floor", "lid"), 60),
     "sleeve_pinch": ("sleeve_pinch.yaml", ("torso_soft.npy",), "sleeve", ("arm", "torso"), 60),
-    "sleeve_elbow": ("sleeve_elbow.yaml", ("elbow_upper_soft.npy", "elbow_forearm_soft.npy"),
+    "sleeve_elbow": ("sleeve_elbow.yaml", ("elbow_upper_soft.npy", "elbow_forearm_soft.npy",
+                                           "sleeve_elbow_sleeve.obj"),
                      "sleeve", ("upper_arm", "forearm", "elbow"), 60),
 }
 
@@ -126,7 +127,7 @@ def run(name, frames=None, overrides=None, tmp=None, verbose=False, scale=1.0):
     tmp = Path(tmp or tempfile.mkdtemp())
     for m in maps:
         shutil.copy(EX / m, tmp / m)
-        if scale != 1.0:
+        if scale != 1.0 and m.endswith(".npy"):
             np.save(tmp / m, np.load(tmp / m) * scale)
     p = tmp / f"{name}_implicit.yaml"
     text = scene_text(name, overrides)

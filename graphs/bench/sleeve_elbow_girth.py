@@ -66,6 +66,8 @@ if str(ROOT) not in sys.path:
 
 #: collision distance sleeve-arm [m] (the two Collider thicknesses)
 GAP = 0.002 + 0.002
+#: vertices around a ring of the sleeve
+AROUND = 24
 ARM = ("upper_arm", "forearm", "elbow")
 SCENE = ROOT / "graphs" / "examples" / "sleeve_elbow.yaml"
 
@@ -227,12 +229,12 @@ class Arm:
         self.start = s["frames"]["start"]
         sl = c.scene.element("sleeve")
         self.sleeve = sl
-        p = el["sleeve"]["geometry"]["params"]
-        self.around, self.along = p["segments"]
+        self.around = AROUND  # the tube's vertex order: ring j, vertex i at j * AROUND + i
+        self.along = sl.vertex_count // AROUND - 1
         R = np.array(X[sl.vertex_slice]).reshape(self.along + 1, self.around, 3)
         self.ring_x = R[:, 0, 0].copy()  # rest position along the arm [m] (x; joint at 0)
         self.ring_rest = np.linalg.norm(np.roll(R, -1, 1) - R, axis=2).sum(1)  # girths [m]
-        self.ring_radius = p["radius"]
+        self.ring_radius = np.linalg.norm(R - R.mean(1, keepdims=True), axis=2).mean(1)
 
     def angle(self, steps):
         """Bend angle [deg] at the end of step ``steps`` (frame start + steps)."""
@@ -278,8 +280,10 @@ def _ring_family(arm, r, d, slide, tilt):
 def run(arm: Arm, frames, rings, slide, tilt, overrides, animated):
     """Per frame and ring the bound (kinematic planes; with a simulation also the planes
     through the simulated ring) against the ring's rest girth; see the module doc."""
-    print(f"scene {arm.scene.name}: sleeve radius {arm.ring_radius} m, ring rest girth "
-          f"{1000 * arm.ring_rest[0]:.1f} mm (2 pi r {2000 * math.pi * arm.ring_radius:.1f}); "
+    print(f"scene {arm.scene}: ring rest girths {1000 * arm.ring_rest[rings].min():.1f}-"
+          f"{1000 * arm.ring_rest[rings].max():.1f} mm (radius "
+          f"{1000 * arm.ring_radius[rings].min():.1f}-{1000 * arm.ring_radius[rings].max():.1f} "
+          "mm); "
           f"slide +-{1000 * slide:.1f} mm, tilt <= {tilt:.0f} deg; "
           + ("the arm as animated (no recession, no simulation)" if animated else
              f"simulated ({overrides or 'defaults'}): the arm as simulated (compliant skin "
@@ -401,7 +405,7 @@ def pinch(scene: Path, frames, settings, skins):
                                                          + sl.vertex_count)
             runs.append({"label": label, "c": c, "sim": Simulation(c), "sl": sl,
                          "E": E.idx[keep], "rest": E.rest[keep], "rows": []})
-        na = 24
+        na = AROUND
         print("| frame | " + " | ".join(r["label"] for r in runs) + " |")
         print("|---|" + "---|" * len(runs))
         for k in range(1, frames + 1):
@@ -454,6 +458,34 @@ def pinch(scene: Path, frames, settings, skins):
             print(f"| {lo}-{min(hi, frames)} | " + " | ".join(cells) + " |", flush=True)
 
 
+def sleeve_mesh(radius=0.060, wrist=0.056, taper_from=0.125):
+    """The sleeve of graphs/examples/sleeve_elbow.yaml (sleeve_elbow_sleeve.obj): the tube
+    generator's 24 x 16 tube (0.56 m along x from x = -0.29, the vertex order of
+    lokigraph.generators.tube), ``radius`` [m] to x = ``taper_from`` and narrowing linearly to
+    ``wrist`` at the hem, each ring lowered (-z) to rest on the top of the arm (upper arm 0.048 m
+    for x < 0, forearm 0.045 m) at the collision distance GAP. Returns (points, triangles)."""
+    from lokigraph.generators import tube
+
+    g = tube(radius=1.0, length=0.56, segments=(24, 16), axis="x", center=(-0.01, 0.0, 0.0))
+    P = np.array(g.points)
+    x = P[:, 0]
+    r = np.where(x <= taper_from, radius,
+                 radius + (wrist - radius) * (x - taper_from) / (x.max() - taper_from))
+    P[:, 1:] *= r[:, None]
+    P[:, 2] -= r - np.where(x < 0, 0.048, 0.045) - GAP
+    return P, np.asarray(g.triangles)
+
+
+def write_sleeve(path: Path, **kw):
+    """Write :func:`sleeve_mesh` as an OBJ file (vertex order kept)."""
+    P, F = sleeve_mesh(**kw)
+    lines = ["# graphs/examples/sleeve_elbow.yaml's sleeve, written by "
+             "graphs/bench/sleeve_elbow_girth.py --write-sleeve (sleeve_mesh)"]
+    lines += [f"v {p[0]:.9g} {p[1]:.9g} {p[2]:.9g}" for p in P]
+    lines += [f"f {t[0]} {t[1]} {t[2]}" for t in F + 1]
+    path.write_text("\n".join(lines) + "\n")
+
+
 def _range(text):
     out = []
     for part in text.split(","):
@@ -476,7 +508,12 @@ def main(argv=None):
     ap.add_argument("--pinch", action="append", help="a setting: 'node.param=value ... "
                     "[skin=S]' ('' the defaults; skin scales the painted compliant stiffness); "
                     "repeat for more, stepped in turn (see pinch())")
+    ap.add_argument("--write-sleeve", type=Path, help="write the scene's sleeve mesh (OBJ) "
+                    "and stop")
     a = ap.parse_args(argv)
+    if a.write_sleeve:
+        write_sleeve(a.write_sleeve)
+        return
     arm = Arm(a.scene.resolve())
     frames = _range(a.frames)
     rings = _range(a.rings)
