@@ -46,6 +46,22 @@ per frame and setting the worst sleeve edge (strain, ring, degrees from +y -- 0 
 elbow --, kind, the arm pieces its two vertices touch: u upper arm, f forearm, e elbow cap),
 CPU ms and intersecting pairs; then per frame range (1-12, 13-21 the closing crease, 22-28
 full bend, 29-48, 49-60).
+
+``--write-sleeve PATH`` writes the scene's sleeve mesh (:func:`sleeve_mesh`).
+
+Measured at the defaults (frames 1-30, rings 7-11; the simulated rings lie within 0-14 mm of
+their best-fit planes, so a plane is a fair model of a ring; ``--frames 1-30 --rings 7-11``):
+
+* the sleeve before issue #13 (a 0.056 m tube centred on the arm): nothing forced to frame 21
+  (ring 9 at most +1.3 % in the planes it occupies, -1.8 % to frame 20); frames 22-28 ring 9
+  +3.2 .. +5.9 % in its own planes (ring 8 +2.4 .. +4.5 % in the kinematic planes of frames
+  23-27): no setting can hold it under 2 % there without crossing the arm; the worst edge
+  23.9 % (frame 22), the ring's girth +10.2 .. +11.3 %, its worst edge 14.5-23.9 %;
+* the shipped sleeve (0.060 m to 13 cm past the joint; frames 18-30 measured): at most +0.9 %
+  (ring 9, frame 25; +0.8 % at frame 24), the worst edge 13.2 % (frame 24);
+* a 0.064 m sleeve: every ring at least 4.8 % under its rest girth in every frame (1-30), the
+  worst edge 9.8 % (frame 22); not shipped: tests/test_elbow.py's crease speed (0.755 m/s at
+  14 solver iterations, bound 0.73).
 """
 
 from __future__ import annotations
