@@ -62,6 +62,33 @@ their best-fit planes, so a plane is a fair model of a ring; ``--frames 1-30 --r
 * a 0.064 m sleeve: every ring at least 4.8 % under its rest girth in every frame (1-30), the
   worst edge 9.8 % (frame 22); not shipped: tests/test_elbow.py's crease speed (0.755 m/s at
   14 solver iterations, bound 0.73).
+
+The crease pinch on the shipped sleeve (``--frames 1-28``; B = the global strain step's setting
+of strain_limit.global_chord's doc at a 1 % limit with 3 joint passes; J40 = 40 joint passes),
+worst edge % (frame, ring, where, touching) / CPU ms per frame / intersecting pairs, one run,
+settings stepped in turn, 1 thread:
+
+=============  =========================  ==========================  ========================
+setting        frames 1-12                frames 13-21 (the crease)   frames 22-28 (full bend)
+=============  =========================  ==========================  ========================
+defaults       5.00 / 254 / 0             10.41 (21, r9 pinched u+f)  13.16 (24, r9 u+f) / 266
+                                          / 236 / 0                   / 0
+B              1.42 / 226 / 0             18.62 (21, r9 pinched) /    20.60 (25, r9) / 304 / 0
+                                          265 / 0
+B + J40        1.45 / 301 / 0             1.29 (21, r8 axial, free)   3.85 (23, r9 pinched) /
+                                          / 310 / 0                   373 / 0
+B + J40 +      1.48 / 318 / 0             1.50 (13, r16 hem) / 323    1.18 (24, r9 outer) /
+joint_long_                               / 0                         388 / 0
+range
+B + J40 +      1.40 / 318 / 0             1.16 (18, r8 axial, free)   1.21 (22, r8 axial) /
+skin x 0.25                               / 310 / 0                   368 / 0
+=============  =========================  ==========================  ========================
+
+What holds the pinch is the joint passes (contacts and strain limits projected together after
+the iterations): with B's 3 the pinched ring edges reach 18.6 %, with 40 1.3 %; at full bend 40
+passes leave 3.3-3.9 % on ring 9 pinched between the upper arm and the forearm (frames 22-23),
+which the long-range rows in the joint passes or a 4x softer compliant skin (the inner elbow
+recedes further) take out.
 """
 
 from __future__ import annotations
@@ -375,8 +402,8 @@ def run(arm: Arm, frames, rings, slide, tilt, overrides, animated):
 
 
 def _scene_variant(scene: Path, overrides: dict, tmp: Path, skin: float = 1.0) -> Path:
-    """A copy of the scene in ``tmp`` with graph overrides, its painted maps beside it (times
-    ``skin``: the compliant skin's stiffness scaled)."""
+    """A copy of the scene in ``tmp`` with graph overrides, its meshes and painted maps beside
+    it (the maps times ``skin``: the compliant skin's stiffness scaled)."""
     s = yaml.safe_load(scene.read_text())
     go = s.setdefault("graph_overrides", {})
     for node, params in overrides.items():
@@ -384,6 +411,8 @@ def _scene_variant(scene: Path, overrides: dict, tmp: Path, skin: float = 1.0) -
     s["output"] = {"dir": str(tmp / "out")}
     for f in scene.parent.glob("*.npy"):
         np.save(tmp / f.name, np.load(f) * skin)
+    for f in scene.parent.glob("*.obj"):
+        (tmp / f.name).write_bytes(f.read_bytes())
     out = tmp / f"{scene.stem}_{len(list(tmp.glob('*.yaml')))}.yaml"
     out.write_text(yaml.safe_dump(s))
     return out
