@@ -553,6 +553,9 @@ def _row_buffers(g, kind, n):
     friction, one-sided flags), every kept row written by the filter and packed into copies
     (``_pack``). With ``REUSE_BUFFERS`` views of buffers of the group, grown by half when too
     small; else new zeroed arrays."""
+    sink = g.bufs.get("_sink")
+    if sink is not None:  # ``PACK_DIRECT``: the next rows of the packed arrays themselves
+        return sink.reserve(kind, n)
     if not REUSE_BUFFERS:
         return (np.zeros((n, 4), np.int64), np.zeros((n, 3)), np.zeros(n), np.zeros(n),
                 np.zeros(n, np.bool_))
@@ -672,7 +675,9 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
                                mu, one, g.recover, g.side_mem, g.side_seen, g.crossed,
                                g.stamp, g.near_d, g.near_s)
             tol_count += tc
-            vf = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, one[:k], g.strength)
+            mu = mu[:k]
+            mu *= g.friction_scale  # in place: the same products as a new array's
+            vf = (rows[:k], nrm[:k], tgt[:k], mu, one[:k], g.strength)
     if g.do_ee and len(g.edges):
         vn = _vertex_normals(x, g) if g.one_sided.any() else np.zeros((0, 3))
         ne = len(g.edges)
@@ -705,7 +710,9 @@ def _detect_group(g, x, x1, infl, v, h, spacetime=False):
                                g.restitution, g.margin, rows, nrm, tgt, mu, vn, g.crossed,
                                g.stamp)
             tol_count += tc
-            ee = (rows[:k], nrm[:k], tgt[:k], mu[:k] * g.friction_scale, g.strength)
+            mu = mu[:k]
+            mu *= g.friction_scale
+            ee = (rows[:k], nrm[:k], tgt[:k], mu, g.strength)
     return vf, ee, tol_count
 
 
@@ -747,14 +754,27 @@ def _detect_all(d, x, x1, v, h, spacetime=False, slack=0.0) -> int:
     [m]: inflate every box by that much more (``SPACETIME_RELATIVE``)."""
     vf_all, ee_all = [], []
     tolerant = 0
+    sink = _PackSink(d) if PACK_DIRECT and PACK_BUFFERS else None
     for g in d.groups:  # loop over groups, not primitives
         # boxes of both sets are inflated, so a pair is found within 2 * infl
         infl = _infl(g, slack)
-        vf, ee, t = _detect_group(g, x, x1, infl, v, h, spacetime)
-        vf_all.append(vf)
-        ee_all.append(ee)
+        if sink is not None:
+            g.bufs["_sink"] = sink
+        try:
+            vf, ee, t = _detect_group(g, x, x1, infl, v, h, spacetime)
+        finally:
+            g.bufs.pop("_sink", None)
+        if sink is not None:
+            sink.commit("vf", vf)
+            sink.commit("ee", ee)
+        else:
+            vf_all.append(vf)
+            ee_all.append(ee)
         tolerant += t
-    _pack(d, vf_all, ee_all)
+    if sink is not None:
+        sink.finish()
+    else:
+        _pack(d, vf_all, ee_all)
     _cull(d, x1)
     return tolerant
 
@@ -913,6 +933,77 @@ def _pack(d, vf_all, ee_all):
             d.vf, d.vf_n, d.vf_target, d.vf_mu, d.vf_onesided, d.strength = out
         else:
             d.ee, d.ee_n, d.ee_target, d.ee_mu, d.ee_strength = out
+
+
+#: the filters write their rows straight into ``_pack``'s next buffer set, group after group
+#: (``_PackSink``), instead of into the group's buffers that ``_pack`` then copies: the same
+#: values in the same places (the friction scaled in place, the strengths filled per group),
+#: so the positions are bitwise those of False. Measured with ``NUMBA_NUM_THREADS=1
+#: peer_collision.py --moving --loki 2x15 --stages --all-flag PACK_DIRECT=False`` (see the
+#: report of #12 for the figures): the first detection's ``pack`` part 343 / 573 ms a frame
+#: (static / moving 128 x 128) was the copy
+PACK_DIRECT = True
+
+
+class _PackSink:
+    """``PACK_DIRECT``: hands the filters of one detection views of the next ``_pack`` buffer
+    set at the running offset (``reserve``), takes each group's result (``commit``: in place
+    when it is that view, copied otherwise, e.g. from a wrapped ``_detect_group``), and sets
+    the contacts' arrays (``finish``). The buffer sets alternate as ``_pack_set``'s do."""
+
+    def __init__(self, d):
+        self.d = d
+        self.bufs = d.__dict__.setdefault("_pack_bufs", {})
+        self.key = {}
+        self.off = {"vf": 0, "ee": 0}
+        for kind in ("vf", "ee"):
+            turn = self.bufs.get(kind + "_turn", 1) ^ 1
+            self.bufs[kind + "_turn"] = turn
+            self.key[kind] = (kind, turn)
+
+    def _set(self, kind, n):
+        """The buffer set of ``kind`` holding at least the offset plus ``n`` rows (grown by
+        half, the rows so far copied)."""
+        layout = _PACK_VF if kind == "vf" else _PACK_EE
+        b = self.bufs.get(self.key[kind])
+        i = self.off[kind]
+        if b is None or len(b[0]) < i + n:
+            m = max(i + n, int(1.5 * len(b[0])) if b is not None else i + n)
+            nb = tuple(np.empty((m,) + shape, dt) for shape, dt in layout)
+            if b is not None and i:
+                for a, o in zip(nb, b):
+                    a[:i] = o[:i]
+            b = self.bufs[self.key[kind]] = nb
+        return b
+
+    def reserve(self, kind, n):
+        """As ``_row_buffers``: (rows, normals, targets, friction, one-sided flags or None) of
+        ``n`` rows at the offset."""
+        b = self._set(kind, n)
+        i = self.off[kind]
+        return tuple(a[i:i + n] for a in b[:4]) + ((b[4][i:i + n],) if kind == "vf" else (None,))
+
+    def commit(self, kind, part):
+        """Take a group's rows (``_detect_group``'s tuple for ``kind``) at the offset."""
+        k = len(part[0])
+        if not k:
+            return
+        b = self._set(kind, k)
+        i = self.off[kind]
+        for j in range(len(b) - 1):
+            if part[j].__array_interface__["data"][0] != b[j][i:].__array_interface__["data"][0]:
+                b[j][i:i + k] = part[j]
+        b[-1][i:i + k] = part[-1]  # the group's strength
+        self.off[kind] = i + k
+
+    def finish(self):
+        d = self.d
+        for kind in ("vf", "ee"):
+            out = tuple(a[:self.off[kind]] for a in self._set(kind, 0))
+            if kind == "vf":
+                d.vf, d.vf_n, d.vf_target, d.vf_mu, d.vf_onesided, d.strength = out
+            else:
+                d.ee, d.ee_n, d.ee_target, d.ee_mu, d.ee_strength = out
 
 
 def _pack_new(d, vf_all, ee_all):

@@ -215,6 +215,17 @@ DEFAULT_MAX_ITER = 100_000
 # ---------------------------------------------------------------------------------------
 # Distance kernels (scalar components, no allocation)
 # ---------------------------------------------------------------------------------------
+#
+# _outside_unit: the kernels test a quotient q = num / den (den > 0) against 0 and 1 without
+# dividing where the numerator alone decides: num < -_TINY den gives a negative q that does
+# not underflow to -0.0, num > _ONE_UP den (or a sum of two such numerators, both >= 0) a q
+# (or a sum of two rounded q) above 1 after rounding. Elsewhere, and for non-finite or NaN
+# values (every comparison false), they divide and test as before, so the results are bitwise
+# those of dividing first (tests/test_collision_distance.py checks this on random, degenerate,
+# lattice and non-finite inputs). Measured on the moving scene's first detection of frame 8
+# (2.77M edge-edge / 1.11M vertex-face candidates, 1 thread): 146 -> 132 ms / 51 -> 47 ms.
+_TINY = 1e-290
+_ONE_UP = 1.0 + 1e-14
 
 
 @njit(cache=True, inline="always")
@@ -229,11 +240,18 @@ def _pt_seg_sq(px, py, pz, ax, ay, az, bx, by, bz):
     dd = dx * dx + dy * dy + dz * dz
     t = 0.0
     if dd > 0.0:
-        t = (wx * dx + wy * dy + wz * dz) / dd
-        if t < 0.0:
-            t = 0.0
-        elif t > 1.0:
+        # the clamped quotient without the division where it is clamped (bitwise the same:
+        # wd >= dd > 0 gives wd / dd >= 1; wd < -_TINY dd a negative quotient that does not
+        # underflow to -0.0, so 0.0 either way; non-finite and NaN inputs take the division)
+        wd = wx * dx + wy * dy + wz * dz
+        if wd >= dd and dd < np.inf:
             t = 1.0
+        elif not wd < -_TINY * dd:
+            t = wd / dd
+            if t < 0.0:
+                t = 0.0
+            elif t > 1.0:
+                t = 1.0
     qx = wx - t * dx
     qy = wy - t * dy
     qz = wz - t * dz
@@ -271,18 +289,23 @@ def _pt_tri_sq(px, py, pz, ax, ay, az, bx, by, bz, cx, cy, cz):
         vx = e1y * wz - e1z * wy
         vy = e1z * wx - e1x * wz
         vz = e1x * wy - e1y * wx
-        s = (ux * nx + uy * ny + uz * nz) / nn
-        t = (vx * nx + vy * ny + vz * nz) / nn
-        if s >= 0.0 and t >= 0.0 and s + t <= 1.0:
-            qx = wx - s * e1x - t * e2x
-            qy = wy - s * e1y - t * e2y
-            qz = wz - s * e1z - t * e2z
-            best = qx * qx + qy * qy + qz * qz
-            b0 = 1.0 - s - t
-            b1 = s
-            b2 = t
-            if well_conditioned:
-                return best, b0, b1, b2
+        sn = ux * nx + uy * ny + uz * nz
+        tn = vx * nx + vy * ny + vz * nz
+        # the divisions only where the projection can be inside (see _outside_unit)
+        lim = -_TINY * nn
+        if not (sn < lim or tn < lim or sn + tn > _ONE_UP * nn):
+            s = sn / nn
+            t = tn / nn
+            if s >= 0.0 and t >= 0.0 and s + t <= 1.0:
+                qx = wx - s * e1x - t * e2x
+                qy = wy - s * e1y - t * e2y
+                qz = wz - s * e1z - t * e2z
+                best = qx * qx + qy * qy + qz * qz
+                b0 = 1.0 - s - t
+                b1 = s
+                b2 = t
+                if well_conditioned:
+                    return best, b0, b1, b2
     # boundary: three edges
     d2, tt = _pt_seg_sq(px, py, pz, ax, ay, az, bx, by, bz)
     if d2 < best:
@@ -334,17 +357,23 @@ def _seg_seg_sq(p0x, p0y, p0z, p1x, p1y, p1z, q0x, q0y, q0z, q1x, q1y, q1z):
         cx_ = d1y * rz - d1z * ry
         cy_ = d1z * rx - d1x * rz
         cz_ = d1x * ry - d1y * rx
-        s = (nx * ax_ + ny * ay_ + nz * az_) / nn
-        t = (nx * cx_ + ny * cy_ + nz * cz_) / nn
-        if s >= 0.0 and s <= 1.0 and t >= 0.0 and t <= 1.0:
-            qx = rx + s * d1x - t * d2x
-            qy = ry + s * d1y - t * d2y
-            qz = rz + s * d1z - t * d2z
-            best = qx * qx + qy * qy + qz * qz
-            bs = s
-            bt = t
-            if nn > 1e-10 * a * e:
-                return best, bs, bt
+        sn = nx * ax_ + ny * ay_ + nz * az_
+        tn = nx * cx_ + ny * cy_ + nz * cz_
+        # the divisions only where the closest points can be inside (see _outside_unit)
+        lim = -_TINY * nn
+        hi = _ONE_UP * nn
+        if not (sn < lim or tn < lim or sn > hi or tn > hi):
+            s = sn / nn
+            t = tn / nn
+            if s >= 0.0 and s <= 1.0 and t >= 0.0 and t <= 1.0:
+                qx = rx + s * d1x - t * d2x
+                qy = ry + s * d1y - t * d2y
+                qz = rz + s * d1z - t * d2z
+                best = qx * qx + qy * qy + qz * qz
+                bs = s
+                bt = t
+                if nn > 1e-10 * a * e:
+                    return best, bs, bt
     # boundary of [0,1]^2: endpoint vs segment
     d2, tt = _pt_seg_sq(p0x, p0y, p0z, q0x, q0y, q0z, q1x, q1y, q1z)
     if d2 < best:

@@ -284,6 +284,9 @@ def install_stages(n_cloth: int):
     timed(C, "_filter_ee", "filter_ee")
     timed(C, "_vertex_normals", "filter_ee")
     timed(C, "_pack", "pack", after=lambda d, *_: count_rows(d))
+    if hasattr(C, "_PackSink"):  # PACK_DIRECT: the filters write the packed rows themselves
+        timed(C._PackSink, "commit", "pack")
+        timed(C._PackSink, "finish", "pack", after=lambda sink: count_rows(sink.d))
     timed(C, "_cull", "cull")
     timed(C, "_project_contacts", "pass", after=full_pass)
     timed(C, "_ccd_hits", "ccd_hits")
@@ -803,6 +806,10 @@ def main(argv=None):
                          "contacts.NAME set True around its steps only (e.g. "
                          "SPACETIME_PREDICTED; NAME=VALUE,NAME=VALUE sets those values), in "
                          "the same interleaved run")
+    ap.add_argument("--all-flag", nargs="+", default=None, metavar="NAME",
+                    help="with --moving: every scene (the static one too) again with the "
+                         "contacts flags set as --moving-flag's, in the same interleaved run "
+                         "(A/B of a flag that must leave the positions unchanged)")
     ap.add_argument("--breakdown", action="store_true",
                     help="time the collision functions per frame (detect, project, ccd; "
                          "see install_breakdown) and print a per-frame table")
@@ -874,6 +881,11 @@ def main(argv=None):
             runs += [LokiRun(sc, *st[:2], label=f" {sc.path.stem} {name}",
                              threads=st[2] if len(st) > 2 else None, flags=_flags(name))
                      for st in loki for sc in scenes[1:]]
+        for name in args.all_flag or ():  # every scene again with the flags set
+            runs += [LokiRun(sc, *st[:2], label=(" static" if sc.path == SCENES[128] else
+                                                 f" {sc.path.stem}") + f" {name}",
+                             threads=st[2] if len(st) > 2 else None, flags=_flags(name))
+                     for st in loki for sc in scenes]
         if args.stages:
             install_stages(len(scenes[0].cloth_q0))
         rows = run_interleaved(runs, frames)
