@@ -938,10 +938,20 @@ def _pack(d, vf_all, ee_all):
 #: the filters write their rows straight into ``_pack``'s next buffer set, group after group
 #: (``_PackSink``), instead of into the group's buffers that ``_pack`` then copies: the same
 #: values in the same places (the friction scaled in place, the strengths filled per group),
-#: so the positions are bitwise those of False. Measured with ``NUMBA_NUM_THREADS=1
-#: peer_collision.py --moving --loki 2x15 --stages --all-flag PACK_DIRECT=False`` (see the
-#: report of #12 for the figures): the first detection's ``pack`` part 343 / 573 ms a frame
-#: (static / moving 128 x 128) was the copy
+#: so the positions are bitwise those of False (10 frames of cloth_sphere_64 and of
+#: cloth_sphere_moving_128). Measured with ``NUMBA_NUM_THREADS=1 peer_collision.py --moving
+#: --loki 2x15 --stages --stage-frames 8 12 --frames 12 --all-flag PACK_DIRECT=False`` (one
+#: interleaved run, load ~5): the first detection 2,109 -> 1,791 ms a frame (static 128 x 128)
+#: and 4,114 -> 3,653 (moving): its pack part 520 / 879 ms -> 0, the filters 873 -> 1,134 /
+#: 1,820 -> 2,311 (the first touch of the grown buffers' pages moves into them); median
+#: frame CPU 1,489 -> 1,336 and 2,900 -> 2,474 ms. Tried and dropped beside it: an int32
+#: copy of the rows for the culled passes (written by ``_cull_rows``; bitwise the same
+#: positions): passes 840 -> 824 / 1,664 -> 1,708 ms a frame (static / moving), the cull
+#: 93 -> 212 / 169 -> 393 ms; and exact per-vertex or per-block culls of the passes (a row
+#: skipped while its vertices' motion since the detection, |p - ref|, or the spread of that
+#: motion over a block of 16-64 consecutive rows, cannot close its bound): on frame 9 of the
+#: moving scene they would still visit 17-75 % (per vertex) and 60-85 % (blocks) of the rows
+#: of the 16 contact passes, where the per-row gate opens for 2-7 %
 PACK_DIRECT = True
 
 
