@@ -899,18 +899,43 @@ _PACK_EE = (((4,), np.int64), ((3,), np.float64), ((), np.float64), ((), np.floa
             ((), np.float64))  # rows, normals, targets, mu, strength
 
 
-def _pack_set(d, kind, n, layout):
-    """Views of the first ``n`` rows of the next buffer set of ``kind`` ("vf" / "ee") of the
-    contacts ``d`` (the two sets alternate; grown by half when too small)."""
+def _pack_turn(d, kind):
+    """The contacts ``d``'s buffers and the key of the next buffer set of ``kind`` ("vf" /
+    "ee"): the two sets alternate, so the arrays a detection packs stay valid while the next
+    one is packed."""
     bufs = d.__dict__.setdefault("_pack_bufs", {})
     turn = bufs.get(kind + "_turn", 1) ^ 1
     bufs[kind + "_turn"] = turn
-    key = (kind, turn)
+    return bufs, (kind, turn)
+
+
+def _pack_grown(bufs, key, n, layout, keep=0):
+    """The buffer set ``bufs[key]`` holding at least ``n`` rows, grown by half when too small
+    (its first ``keep`` rows copied into the new set)."""
     b = bufs.get(key)
     if b is None or len(b[0]) < n:
         m = max(n, int(1.5 * len(b[0])) if b is not None else n)
-        b = bufs[key] = tuple(np.empty((m,) + shape, dt) for shape, dt in layout)
-    return tuple(a[:n] for a in b)
+        nb = tuple(np.empty((m,) + shape, dt) for shape, dt in layout)
+        if b is not None and keep:
+            for a, o in zip(nb, b):
+                a[:keep] = o[:keep]
+        b = bufs[key] = nb
+    return b
+
+
+def _set_packed(d, kind, out):
+    """The contacts' packed arrays of ``kind`` from ``out`` (``_PACK_VF`` / ``_PACK_EE``)."""
+    if kind == "vf":
+        d.vf, d.vf_n, d.vf_target, d.vf_mu, d.vf_onesided, d.strength = out
+    else:
+        d.ee, d.ee_n, d.ee_target, d.ee_mu, d.ee_strength = out
+
+
+def _pack_set(d, kind, n, layout):
+    """Views of the first ``n`` rows of the next buffer set of ``kind`` ("vf" / "ee") of the
+    contacts ``d`` (the two sets alternate; grown by half when too small)."""
+    bufs, key = _pack_turn(d, kind)
+    return tuple(a[:n] for a in _pack_grown(bufs, key, n, layout))
 
 
 def _pack(d, vf_all, ee_all):
@@ -929,10 +954,7 @@ def _pack(d, vf_all, ee_all):
                     out[j][i:i + k] = a[j]
                 out[-1][i:i + k] = a[-1]  # the group's strength
             i += k
-        if kind == "vf":
-            d.vf, d.vf_n, d.vf_target, d.vf_mu, d.vf_onesided, d.strength = out
-        else:
-            d.ee, d.ee_n, d.ee_target, d.ee_mu, d.ee_strength = out
+        _set_packed(d, kind, out)
 
 
 #: the filters write their rows straight into ``_pack``'s next buffer set, group after group
@@ -963,28 +985,17 @@ class _PackSink:
 
     def __init__(self, d):
         self.d = d
-        self.bufs = d.__dict__.setdefault("_pack_bufs", {})
         self.key = {}
         self.off = {"vf": 0, "ee": 0}
         for kind in ("vf", "ee"):
-            turn = self.bufs.get(kind + "_turn", 1) ^ 1
-            self.bufs[kind + "_turn"] = turn
-            self.key[kind] = (kind, turn)
+            self.bufs, self.key[kind] = _pack_turn(d, kind)
 
     def _set(self, kind, n):
         """The buffer set of ``kind`` holding at least the offset plus ``n`` rows (grown by
         half, the rows so far copied)."""
-        layout = _PACK_VF if kind == "vf" else _PACK_EE
-        b = self.bufs.get(self.key[kind])
         i = self.off[kind]
-        if b is None or len(b[0]) < i + n:
-            m = max(i + n, int(1.5 * len(b[0])) if b is not None else i + n)
-            nb = tuple(np.empty((m,) + shape, dt) for shape, dt in layout)
-            if b is not None and i:
-                for a, o in zip(nb, b):
-                    a[:i] = o[:i]
-            b = self.bufs[self.key[kind]] = nb
-        return b
+        return _pack_grown(self.bufs, self.key[kind], i + n,
+                           _PACK_VF if kind == "vf" else _PACK_EE, keep=i)
 
     def reserve(self, kind, n):
         """As ``_row_buffers``: (rows, normals, targets, friction, one-sided flags or None) of
@@ -1007,13 +1018,8 @@ class _PackSink:
         self.off[kind] = i + k
 
     def finish(self):
-        d = self.d
         for kind in ("vf", "ee"):
-            out = tuple(a[:self.off[kind]] for a in self._set(kind, 0))
-            if kind == "vf":
-                d.vf, d.vf_n, d.vf_target, d.vf_mu, d.vf_onesided, d.strength = out
-            else:
-                d.ee, d.ee_n, d.ee_target, d.ee_mu, d.ee_strength = out
+            _set_packed(self.d, kind, tuple(a[:self.off[kind]] for a in self._set(kind, 0)))
 
 
 def _pack_new(d, vf_all, ee_all):
