@@ -109,6 +109,11 @@ import yaml
 ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "graphs" / "bench"))
+try:
+    import cloth_strain as cs  # the scene copies, the convex sections, the sleeve's parts
+finally:
+    sys.path.pop(0)
 
 #: collision distance sleeve-arm [m] (the two Collider thicknesses)
 GAP = 0.002 + 0.002
@@ -183,15 +188,6 @@ def _seg_distance(P, segs):
     return np.linalg.norm(P[:, None] - (a + t[..., None] * ab), axis=-1).min()
 
 
-def _hull_perimeter(P):
-    from scipy.spatial import ConvexHull
-
-    if len(P) < 3:
-        return 0.0
-    H = P[ConvexHull(P).vertices]
-    return float(np.linalg.norm(np.roll(H, -1, 0) - H, axis=1).sum())
-
-
 def plane_girth(meshes, axis, c, n):
     """The shortest loop [m] around the arm in the plane through c with normal n (see the module
     doc), or inf when no blob of the section holds a net crossing of the centreline ``axis``
@@ -237,7 +233,7 @@ def plane_girth(meshes, axis, c, n):
         if sign[inside].sum() == 0:
             continue
         P = np.concatenate([segs.reshape(-1, 2) for segs in members])
-        best = min(best, _hull_perimeter(P) + 2 * math.pi * GAP)
+        best = min(best, cs._hull_perimeter(P) + 2 * math.pi * GAP)
     return best
 
 
@@ -354,8 +350,6 @@ def run(arm: Arm, frames, rings, slide, tilt, overrides, animated):
     from lokigraph.api import compile_file
     from lokigraph.run import Simulation
 
-    sys.path.insert(0, str(ROOT / "graphs" / "bench"))
-    import cloth_strain as cs
 
     with tempfile.TemporaryDirectory() as tmp:
         c = compile_file(cs._variant(arm.scene, overrides, Path(tmp)))
@@ -405,19 +399,14 @@ def run(arm: Arm, frames, rings, slide, tilt, overrides, animated):
 
 
 def _scene_variant(scene: Path, overrides: dict, tmp: Path, skin: float = 1.0) -> Path:
-    """A copy of the scene in ``tmp`` with graph overrides, its meshes and painted maps beside
-    it (the maps times ``skin``: the compliant skin's stiffness scaled)."""
-    s = yaml.safe_load(scene.read_text())
-    go = s.setdefault("graph_overrides", {})
-    for node, params in overrides.items():
-        go.setdefault(node, {}).update(params)
-    s["output"] = {"dir": str(tmp / "out")}
-    for f in scene.parent.glob("*.npy"):
-        np.save(tmp / f.name, np.load(f) * skin)
-    for f in scene.parent.glob("*.obj"):
-        (tmp / f.name).write_bytes(f.read_bytes())
-    out = tmp / f"{scene.stem}_{len(list(tmp.glob('*.yaml')))}.yaml"
-    out.write_text(yaml.safe_dump(s))
+    """A copy of the scene in ``tmp`` with graph overrides (``cloth_strain._variant``: its
+    meshes and maps linked beside it), the painted maps times ``skin`` (the compliant skin's
+    stiffness scaled) when it is not 1."""
+    out = cs._variant(scene, overrides, tmp)
+    if skin != 1.0:
+        for f in scene.parent.glob("*.npy"):
+            (tmp / f.name).unlink()
+            np.save(tmp / f.name, np.load(f) * skin)
     return out
 
 
@@ -437,8 +426,6 @@ def pinch(scene: Path, frames, settings, skins):
     from lokigraph.behaviors.collision.intersect import intersect_meshes
     from lokigraph.run import Simulation
 
-    sys.path.insert(0, str(ROOT / "graphs" / "bench"))
-    import cloth_strain as cs
 
     names = "ufe"
     with tempfile.TemporaryDirectory() as tmp:
@@ -568,25 +555,16 @@ def main(argv=None):
     if a.pinch:
         settings, skins = [], []
         for text in a.pinch:
-            ov, skin = {}, 1.0
-            for it in text.split():
-                key, val = it.split("=", 1)
-                if key == "skin":
-                    skin = float(val)
-                    continue
-                node, param = key.split(".", 1)
-                ov.setdefault(node, {})[param] = yaml.safe_load(val)
+            items = text.split()
+            skin = float(next((it.split("=", 1)[1] for it in items
+                               if it.startswith("skin=")), 1.0))
+            ov = cs._parse_set([it for it in items if not it.startswith("skin=")])
             settings.append((text if len(text) < 40 else f"setting {len(settings) + 1}", ov))
             skins.append(skin)
             print(f"{settings[-1][0]}: {text or 'defaults'}")
         pinch(a.scene.resolve(), max(frames), settings, skins)
         return
-    ov = {}
-    for it in a.set:
-        key, val = it.split("=", 1)
-        node, param = key.split(".", 1)
-        ov.setdefault(node, {})[param] = yaml.safe_load(val)
-    run(arm, frames, rings, a.slide, a.tilt, ov, a.animated)
+    run(arm, frames, rings, a.slide, a.tilt, cs._parse_set(a.set), a.animated)
 
 
 if __name__ == "__main__":
