@@ -1924,6 +1924,15 @@ def _cells(lo, hi, i, a0, a1, c, o0, o1):
             int((lo[i, a1] - o1) / c), int((hi[i, a1] - o1) / c))
 
 
+@njit(inline="always", cache=True)
+def _cell_code(lo, hi, big, i, a0, a1, c, o0, o1, ny):
+    """Box ``i``'s columns packed in one int64 (:func:`_col_cells`), -1 for a big box."""
+    if big[i]:
+        return -1
+    x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
+    return ((x0 * ny + y0) << 8) | ((x1 - x0) << 4) | (y1 - y0)
+
+
 @njit(cache=True, inline="always")
 def _bucket(v, vmin, scale, nb):
     """The bucket of ``v`` among ``nb`` (non-decreasing in ``v``: every step rounds
@@ -1956,11 +1965,7 @@ def _bucket_order(lo, s, vmin, vmax, order, key, key2, hist, bstart, width, hi, 
             key[i] = v
             hist[k, _bucket(v, vmin, scale, nb)] += 1
             if with_cells:
-                if big[i]:
-                    cells[i] = -1
-                else:
-                    x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
-                    cells[i] = ((x0 * ny + y0) << 8) | ((x1 - x0) << 4) | (y1 - y0)
+                cells[i] = _cell_code(lo, hi, big, i, a0, a1, c, o0, o1, ny)
     pos = 0
     for j in range(nb):
         bstart[j] = pos
@@ -2086,11 +2091,7 @@ def _col_cells(lo, hi, big, a0, a1, c, o0, o1, ny, cells):
     is not big spans at most ``_COL_BIG_SPAN`` + 1 columns an axis); -1 for a big box. The
     count and the fill read these 8 bytes a box in the fill order instead of its two box rows."""
     for i in prange(lo.shape[0]):
-        if big[i]:
-            cells[i] = -1
-            continue
-        x0, x1, y0, y1 = _cells(lo, hi, i, a0, a1, c, o0, o1)
-        cells[i] = ((x0 * ny + y0) << 8) | ((x1 - x0) << 4) | (y1 - y0)
+        cells[i] = _cell_code(lo, hi, big, i, a0, a1, c, o0, o1, ny)
 
 
 @njit(cache=True, nogil=True)
