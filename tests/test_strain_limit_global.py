@@ -15,8 +15,9 @@ from lokigraph.run import Simulation
 
 EX = Path(__file__).resolve().parent.parent / "graphs" / "examples"
 
-#: the global step's defaults before it became a default (stop 27), which the comparisons below
-#: were measured against: set explicitly, so that each compares one setting with another
+#: the global step's defaults (as of stop 27), which the comparisons below were measured
+#: against: set explicitly, so that each compares one setting with another whatever the
+#: defaults become
 OLD = dict(global_tolerance=0.001, global_every="substep", global_smooth=0, global_alpha=1e-3,
            global_chord=0, global_chord_rate=0.5, global_fast_lu=False,
            inextensible_joint_iterations=10)
