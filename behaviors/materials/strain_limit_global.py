@@ -231,6 +231,13 @@ def plane_project(p, vv, nn, c0, x0):
 _NO_CONTACTS = (np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros((0, 3)), 0)
 
 
+def _contact_planes(best, nrm, p):
+    """The contact planes the Gauss-Seidel sweeps keep vertices in front of: the vertices with
+    a contact (``best`` finite), their outward normals, C (``best``) and positions ``p``."""
+    vv = np.flatnonzero(best < np.inf)
+    return vv, np.ascontiguousarray(nrm[vv]), best[vv].copy(), p[vv].copy()
+
+
 class GlobalStrainStep:
     """Work arrays of the global step for one StrainLimitConstraint (allocated at bind)."""
 
@@ -591,9 +598,7 @@ class GlobalStrainStep:
                     # the sweeps move vertices freely: without the filter's contact planes
                     # they pushed the drape's cloth into the ball (1.3 against 4.1 mm from its
                     # inradius), and what the CCD safe step then did stretched it to 2.9 %
-                    vv = np.flatnonzero(self._best < np.inf)
-                    self._planes = (vv, np.ascontiguousarray(self._bnrm[vv]),
-                                    self._best[vv].copy(), p[vv].copy())
+                    self._planes = _contact_planes(self._best, self._bnrm, p)
         lu = frozen = None
         worst = last = np.inf
         sub = ch = None
@@ -656,8 +661,7 @@ class GlobalStrainStep:
                 vv = np.flatnonzero(self._vbest < np.inf)
                 nc = len(vv)
                 if self.smooth:
-                    self._planes = (vv, np.ascontiguousarray(nrm[vv]), self._vbest[vv].copy(),
-                                    p[vv].copy())
+                    self._planes = _contact_planes(self._vbest, nrm, p)
                 cv = np.zeros((nc, 4), np.int64)
                 cv[:, 0] = vv
                 ccf = np.zeros((nc, 4))
