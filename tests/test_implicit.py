@@ -230,7 +230,9 @@ def test_fused_block_jacobi_pcg_is_bitwise_the_unfused_loop():
     """pcg_block_jacobi (vector passes fused into the matrix product and the preconditioner)
     returns bitwise the iterates, iteration count and residual of the unfused loop
     (bsr_matvec, apply_blocks, _dot), converged and stopped at the cap, on a mesh-like SPD
-    block system; and an iterate differs from the start (the comparison can fail)."""
+    block system; and an iterate differs from the start (the comparison can fail). The scratch
+    z is compared at the cap only: the fused loop forms z = P^-1 r before its stop test, so a
+    solve that converges leaves the unused last z there."""
     from lokigraph.behaviors.solvers.implicit.linear import (invert_blocks, pcg_block_jacobi,
                                                              pcg_block_jacobi_unfused)
     from test_implicit_forcing import _mesh_system
@@ -246,8 +248,8 @@ def test_fused_block_jacobi_pcg_is_bitwise_the_unfused_loop():
             out.append((f(A.indptr, A.indices, A.data, inv, b, tol, maxit, *w), w))
         (ra, wa), (rb, wb) = out
         assert ra == rb
-        for u, v in zip(wa, wb):
-            assert np.array_equal(u, v)
+        for k, (u, v) in enumerate(zip(wa, wb)):
+            assert k == 2 and maxit != 17 or np.array_equal(u, v)
         assert np.abs(wa[0]).max() > 0.0
         if maxit == 17:
             assert ra[0] == 17 and ra[1] > tol

@@ -734,7 +734,9 @@ class ImplicitSolver(Behavior):
         for e in energies:
             ns = len(e[2])
             e.append(maps[k:k + ns])
-            e.append([np.zeros((s.shape[0], s.shape[1], s.shape[1], 3, 3)) for s in e[2]])
+            # block arrays for the scatter; none for an energy_assemble (blocks into A)
+            e.append(None if getattr(e[0], "energy_assemble", None) is not None else
+                     [np.zeros((s.shape[0], s.shape[1], s.shape[1], 3, 3)) for s in e[2]])
             k += ns
         d.energies = energies
         d.projected = projected
@@ -814,6 +816,9 @@ class ImplicitSolver(Behavior):
             A = d.A.data
             A[:] = 0.0
             for b, bd, st, maps, hloc in d.energies:
+                if hloc is None:  # energy_assemble: its blocks straight into A
+                    E += b.energy_assemble(ctx, bd, x, grad, A, maps, opts)
+                    continue
                 for hl in hloc:
                     hl[:] = 0.0
                 E += b.energy(ctx, bd, x, grad, hloc, opts)

@@ -1,0 +1,230 @@
+"""Where one implicit frame of the cloth-on-sphere drop goes, stage by stage (issue #11: the cost
+per Newton iteration and per CG iteration), with call counts.
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_cost.py 128 [frames] [--from F] \
+        [--save FRAME:ITER:PATH] [k=v ...]
+
+The drop is graphs/bench/cloth_sphere_{N}.yaml at 1 substep with ``solver: implicit``
+(``implicit_drop.scene_text``); ``k=v`` become implicit_solver overrides. Every stage below is
+timed with ``time.process_time`` around the solver's own calls (per instance / per module
+attribute: the code timed is the code that runs) and counted; the table sums frames ``--from``
+(default 2: frame 1 compiles the kernels) .. ``frames`` and prints CPU ms per frame, calls per
+frame and ms per call:
+
+``detect`` CollisionDetect.step; ``assemble`` the potential with gradient and Newton matrix
+(``_potential`` mode 2), of which ``assemble.elastic[T]`` the energy kernels of type T,
+``assemble.scatter`` their blocks' scatter into the matrix, ``assemble.limit`` the hard rows'
+strain-limit terms, ``assemble.rows`` the contact rows (``row_energy_coupled``), the rest
+(inertia, diagonal and Dirichlet rows) ``assemble.other``; ``precond`` the preconditioner's
+setup; ``cg`` the linear solve (with the CG iterations per frame and ms per CG iteration);
+``linesearch`` the line-search potentials (``_potential`` mode 0 inside a Newton iteration),
+``linesearch.rows`` their contact rows; ``start`` the potentials of ``start_at_rest``;
+``lag`` ``_lag_rows``; ``extend`` ``_extend_live``; ``residuals`` ``_row_residuals``;
+``project`` the projection pass (collision final rounds: re-detection, CCD: the safety
+projection of the contact rows); ``newton.other`` the rest of ``_newton``; ``frame.other`` the
+rest of the frame.
+
+``--save FRAME:ITER:PATH`` (repeatable) writes the Newton system of that frame's ITER-th Newton
+iteration (1-based, counted over the frame) to PATH (.npz: indptr, indices, data, diag, b,
+fixed) for ``implicit_cost_cg.py``.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import implicit_drop as D  # noqa: E402
+
+from lokigraph.api import compile_file  # noqa: E402
+from lokigraph.behaviors.solvers.implicit import solver as S  # noqa: E402
+from lokigraph.run import Simulation  # noqa: E402
+
+
+class Clock:
+    """CPU seconds and calls per key; ``stack`` holds the key of the enclosing timed call."""
+
+    def __init__(self):
+        self.t = defaultdict(float)
+        self.n = defaultdict(int)
+        self.stack = []
+
+    def wrap(self, obj, name, key_of):
+        f = getattr(obj, name)
+
+        def g(*a, **k):
+            key = key_of(a, k)
+            if key is None:
+                return f(*a, **k)
+            self.stack.append(key)
+            t = time.process_time()
+            try:
+                return f(*a, **k)
+            finally:
+                self.t[key] += time.process_time() - t
+                self.n[key] += 1
+                self.stack.pop()
+        setattr(obj, name, g)
+        return f
+
+    def inside(self):
+        return self.stack[-1] if self.stack else ""
+
+    def clear(self):
+        self.t.clear()
+        self.n.clear()
+
+
+def instrument(sim, clk, save=()):
+    """Time the stages of ``sim`` into ``clk`` (module docstring); ``save``: (frame, iter,
+    path) triples, the Newton systems to write."""
+    beh = [b.behavior for b in sim.schedule.all()]
+    sv = [b for b in beh if isinstance(b, S.ImplicitSolver)][0]
+    state = {"frame": 0, "newton": 0}
+
+    def pot_key(a, k):
+        mode = a[3]
+        if mode >= 2:
+            return "assemble"
+        return "linesearch" if clk.inside() == "newton" else "start"
+    clk.wrap(sv, "_newton", lambda a, k: "newton")
+    clk.wrap(sv, "_potential", pot_key)
+    clk.wrap(sv, "_lag_rows", lambda a, k: "lag")
+    clk.wrap(sv, "_extend_live", lambda a, k: "extend")
+    clk.wrap(sv, "_row_residuals", lambda a, k: "residuals")
+    clk.wrap(sv, "_project", lambda a, k: "project")
+    clk.wrap(sv, "_limit_energy", lambda a, k: "assemble.limit" if a[2] >= 2 else None)
+
+    def sub(name):
+        def key(a, k):
+            outer = clk.inside()
+            return f"{outer}.{name}" if outer in ("assemble", "linesearch") else None
+        return key
+    clk.wrap(S, "row_energy_coupled", sub("rows"))
+    clk.wrap(S, "scatter_blocks", sub("scatter"))
+    orig_prepare = sv._prepare
+
+    def prepare(ctx, d):
+        orig_prepare(ctx, d)
+        clk.wrap(d.precond, "setup", lambda a, k: "precond")
+        solve = clk.wrap(d.precond, "solve", lambda a, k: "cg")
+        for e in d.energies:
+            b = e[0]
+            tn = type(b).__name__
+            clk.wrap(b, "energy", (lambda tn: lambda a, k: (
+                f"{clk.inside()}.elastic[{tn}]" if clk.inside() in ("assemble", "linesearch")
+                else None))(tn))
+        if save:
+            inner = d.precond.solve
+
+            def solve_saving(A, b, *rest, **kw):
+                state["newton"] += 1
+                for f, i, path in save:
+                    if state["frame"] == f and state["newton"] == i:
+                        np.savez(path, indptr=A.indptr, indices=A.indices, data=A.data,
+                                 diag=d.diag, b=b, fixed=d.cur_fixed)
+                        print(f"saved frame {f} Newton iteration {i} to {path}", flush=True)
+                return inner(A, b, *rest, **kw)
+            d.precond.solve = solve_saving
+        del solve
+    sv._prepare = prepare
+    for b in beh:
+        if type(b).__name__ == "CollisionDetect":
+            clk.wrap(b, "step", lambda a, k: "detect")
+    return sv, state
+
+
+ORDER = ("detect", "assemble", "assemble.elastic[StretchConstraint]",
+         "assemble.elastic[BendConstraint]", "assemble.scatter", "assemble.limit",
+         "assemble.rows", "assemble.other", "precond", "cg", "linesearch",
+         "linesearch.elastic[StretchConstraint]", "linesearch.elastic[BendConstraint]",
+         "linesearch.rows", "linesearch.other", "start", "lag", "extend", "residuals",
+         "newton.other", "project", "frame.other", "total")
+
+
+def derived(t, n):
+    """The ``.other`` rows: a stage minus its timed parts."""
+    t = dict(t)
+    for outer in ("assemble", "linesearch"):
+        t[f"{outer}.other"] = t.get(outer, 0.0) - sum(v for k, v in t.items()
+                                                      if k.startswith(outer + "."))
+        n[f"{outer}.other"] = n.get(outer, 0)
+    inner = ("assemble", "precond", "cg", "linesearch", "start", "lag", "extend")
+    t["newton.other"] = t.get("newton", 0.0) - sum(t.get(k, 0.0) for k in inner)
+    n["newton.other"] = n.get("newton", 0)
+    top = ("detect", "newton", "residuals", "project")
+    t["frame.other"] = t["total"] - sum(t.get(k, 0.0) for k in top)
+    n["frame.other"] = n["total"]
+    return t, n
+
+
+def main(argv):
+    frames, first, save, ov = 10, 2, [], {}
+    n = int(argv.pop(0)) if argv and argv[0].isdigit() else 128
+    if argv and argv[0].isdigit():
+        frames = int(argv.pop(0))
+    while argv:
+        a = argv.pop(0)
+        if a == "--from":
+            first = int(argv.pop(0))
+        elif a == "--save":
+            f, i, p = argv.pop(0).split(":", 2)
+            save.append((int(f), int(i), p))
+        else:
+            k, v = a.split("=", 1)
+            ov[k] = v
+    import tempfile
+    p = Path(tempfile.mkdtemp()) / f"cloth_sphere_{n}_implicit.yaml"
+    p.write_text(D.scene_text(n, 1, ov))
+    sim = Simulation(compile_file(p))
+    clk = Clock()
+    _, state = instrument(sim, clk, save)
+    tot_t, tot_n = defaultdict(float), defaultdict(int)
+    stats = defaultdict(float)
+    wall = 0.0
+    print(f"cloth_sphere_{n} implicit, 1 substep, overrides {ov}, numba threads "
+          f"{__import__('numba').get_num_threads()}", flush=True)
+    for f in range(1, frames + 1):
+        state["frame"], state["newton"] = f, 0
+        clk.clear()
+        t, w = time.process_time(), time.perf_counter()
+        st = sim.step_frame()
+        clk.t["total"] = time.process_time() - t
+        clk.n["total"] = 1
+        dw = time.perf_counter() - w
+        print(f"frame {f}: CPU {1e3 * clk.t['total']:.0f} ms (wall {1e3 * dw:.0f}), Newton "
+              f"{st.get('newton_iterations', 0)}, CG {st.get('cg_iterations', 0)}, halvings "
+              f"{st.get('line_search_halvings', 0)}, rows {st.get('max_contact_rows', 0)}, "
+              f"cg {1e3 * clk.t['cg']:.0f} ms, detect {1e3 * clk.t['detect']:.0f}, project "
+              f"{1e3 * clk.t['project']:.0f}", flush=True)
+        if f >= first:
+            wall += dw
+            for k, v in clk.t.items():
+                tot_t[k] += v
+            for k, v in clk.n.items():
+                tot_n[k] += v
+            for k in ("newton_iterations", "cg_iterations", "line_search_halvings"):
+                stats[k] += st.get(k, 0)
+    m = max(frames - first + 1, 1)
+    t, cnt = derived(tot_t, tot_n)
+    print(f"\nframes {first}..{frames}: per frame Newton {stats['newton_iterations'] / m:.1f}, "
+          f"CG {stats['cg_iterations'] / m:.0f}, halvings {stats['line_search_halvings'] / m:.1f}"
+          f", wall {1e3 * wall / m:.0f} ms")
+    print(f"{'stage':40s} {'CPU ms/frame':>12s} {'%':>6s} {'calls/frame':>11s} {'ms/call':>9s}")
+    for k in ORDER + tuple(sorted(set(t) - set(ORDER) - {"newton"})):
+        if k not in t:
+            continue
+        c = cnt.get(k, 0)
+        print(f"{k:40s} {1e3 * t[k] / m:12.1f} {100 * t[k] / t['total']:6.1f} {c / m:11.1f} "
+              f"{1e3 * t[k] / c if c else float('nan'):9.3f}")
+    if stats["cg_iterations"]:
+        print(f"CG: {1e3 * t['cg'] / stats['cg_iterations']:.3f} ms per CG iteration")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

@@ -1,0 +1,297 @@
+"""The implicit solver's linear solve on saved Newton systems (issue #11: the cost per CG
+iteration): what one CG iteration costs by part, and the variants of the solve measured side by
+side on the same system.
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_cost_cg.py SYSTEM.npz [NEXT.npz]
+
+SYSTEM.npz is a Newton system ``graphs/bench/implicit_cost.py --save FRAME:ITER:PATH`` wrote
+(the BSR matrix of 3x3 blocks, its diagonal blocks' indices, the right-hand side -g). NEXT.npz
+(optional) the system of the next Newton iteration: a solve of it from SYSTEM's solution (the
+previous Newton step as the initial guess) is compared with the solve from 0.
+
+Printed: the matrix (vertices, blocks, MB); ms per call of the parts of one block-Jacobi CG
+iteration run alone (the BSR product ``linear.bsr_matvec``, scipy's BSR product, the
+preconditioner ``apply_blocks``, a dot product); then per solve variant at cg_tolerance 1e-3
+and the 500 cap (the solver's defaults): iterations, relative residual reached, ms per solve
+and per iteration, and whether the solution is bitwise that of the solver's loop
+(``pcg_block_jacobi``). Variants: the solver's fused loop, the unfused reference, the fused loop
+with its vertex loops in prange (``pcg_block_jacobi_par``, at the thread count of the run);
+and, changing the iterates: the matrix in float32, the matrix stored as its upper triangle
+(symmetric product), symmetric block Gauss-Seidel as the preconditioner, and the previous
+Newton step as the initial guess.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import scipy.sparse as sp
+from numba import get_num_threads, njit
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from lokigraph.behaviors.solvers.implicit import linear as L  # noqa: E402
+
+
+def best_ms(f, reps=5, inner=1, wall=False):
+    """Least CPU ms per call over ``reps`` runs of ``inner`` calls (with ``wall``: (CPU ms,
+    wall ms), each the least)."""
+    cpu, w = [], []
+    for _ in range(reps):
+        t, t0 = time.process_time(), time.perf_counter()
+        for _ in range(inner):
+            f()
+        cpu.append((time.process_time() - t) / inner)
+        w.append((time.perf_counter() - t0) / inner)
+    return (1e3 * min(cpu), 1e3 * min(w)) if wall else 1e3 * min(cpu)
+
+
+@njit(cache=True)
+def _upper(indptr, indices, data):
+    """The diagonal and upper blocks (j >= i) of a symmetric BSR matrix: (indptr, indices,
+    data) of the upper triangle."""
+    n = indptr.shape[0] - 1
+    cnt = 0
+    for i in range(n):
+        for q in range(indptr[i], indptr[i + 1]):
+            if indices[q] >= i:
+                cnt += 1
+    up = np.zeros(n + 1, np.int64)
+    ui = np.zeros(cnt, np.int32)
+    ud = np.zeros((cnt, 3, 3))
+    k = 0
+    for i in range(n):
+        for q in range(indptr[i], indptr[i + 1]):
+            if indices[q] >= i:
+                ui[k] = indices[q]
+                ud[k] = data[q]
+                k += 1
+        up[i + 1] = k
+    return up, ui, ud
+
+
+@njit(cache=True)
+def _matvec_any(mode, indptr, indices, data, x, y):
+    """y = A x; mode 0: full storage (any dtype), 1: upper triangle (symmetric product)."""
+    n = indptr.shape[0] - 1
+    if mode == 0:
+        for i in range(n):
+            y0 = 0.0
+            y1 = 0.0
+            y2 = 0.0
+            for q in range(indptr[i], indptr[i + 1]):
+                j = indices[q]
+                x0 = x[j, 0]
+                x1 = x[j, 1]
+                x2 = x[j, 2]
+                y0 += data[q, 0, 0] * x0 + data[q, 0, 1] * x1 + data[q, 0, 2] * x2
+                y1 += data[q, 1, 0] * x0 + data[q, 1, 1] * x1 + data[q, 1, 2] * x2
+                y2 += data[q, 2, 0] * x0 + data[q, 2, 1] * x1 + data[q, 2, 2] * x2
+            y[i, 0] = y0
+            y[i, 1] = y1
+            y[i, 2] = y2
+        return
+    for i in range(n):
+        y[i, 0] = 0.0
+        y[i, 1] = 0.0
+        y[i, 2] = 0.0
+    for i in range(n):
+        xi0 = x[i, 0]
+        xi1 = x[i, 1]
+        xi2 = x[i, 2]
+        y0 = 0.0
+        y1 = 0.0
+        y2 = 0.0
+        for q in range(indptr[i], indptr[i + 1]):
+            j = indices[q]
+            x0 = x[j, 0]
+            x1 = x[j, 1]
+            x2 = x[j, 2]
+            y0 += data[q, 0, 0] * x0 + data[q, 0, 1] * x1 + data[q, 0, 2] * x2
+            y1 += data[q, 1, 0] * x0 + data[q, 1, 1] * x1 + data[q, 1, 2] * x2
+            y2 += data[q, 2, 0] * x0 + data[q, 2, 1] * x1 + data[q, 2, 2] * x2
+            if j != i:
+                y[j, 0] += data[q, 0, 0] * xi0 + data[q, 1, 0] * xi1 + data[q, 2, 0] * xi2
+                y[j, 1] += data[q, 0, 1] * xi0 + data[q, 1, 1] * xi1 + data[q, 2, 1] * xi2
+                y[j, 2] += data[q, 0, 2] * xi0 + data[q, 1, 2] * xi1 + data[q, 2, 2] * xi2
+        y[i, 0] += y0
+        y[i, 1] += y1
+        y[i, 2] += y2
+
+
+@njit(cache=True)
+def _sgs(indptr, indices, data, dinv, diagq, r, z, w):
+    """z = (D + L)^-1 D (D + U)^-1 r, one symmetric block Gauss-Seidel sweep from 0 (a
+    symmetric positive definite preconditioner for a symmetric positive definite A)."""
+    n = indptr.shape[0] - 1
+    for i in range(n):  # forward: (D + L) w = r
+        s0, s1, s2 = r[i, 0], r[i, 1], r[i, 2]
+        for q in range(indptr[i], diagq[i]):
+            j = indices[q]
+            s0 -= data[q, 0, 0] * w[j, 0] + data[q, 0, 1] * w[j, 1] + data[q, 0, 2] * w[j, 2]
+            s1 -= data[q, 1, 0] * w[j, 0] + data[q, 1, 1] * w[j, 1] + data[q, 1, 2] * w[j, 2]
+            s2 -= data[q, 2, 0] * w[j, 0] + data[q, 2, 1] * w[j, 1] + data[q, 2, 2] * w[j, 2]
+        for a in range(3):
+            w[i, a] = dinv[i, a, 0] * s0 + dinv[i, a, 1] * s1 + dinv[i, a, 2] * s2
+    for i in range(n - 1, -1, -1):  # backward: (D + U) z = D w
+        q0 = diagq[i]
+        d = data[q0]
+        s0 = d[0, 0] * w[i, 0] + d[0, 1] * w[i, 1] + d[0, 2] * w[i, 2]
+        s1 = d[1, 0] * w[i, 0] + d[1, 1] * w[i, 1] + d[1, 2] * w[i, 2]
+        s2 = d[2, 0] * w[i, 0] + d[2, 1] * w[i, 1] + d[2, 2] * w[i, 2]
+        for q in range(q0 + 1, indptr[i + 1]):
+            j = indices[q]
+            s0 -= data[q, 0, 0] * z[j, 0] + data[q, 0, 1] * z[j, 1] + data[q, 0, 2] * z[j, 2]
+            s1 -= data[q, 1, 0] * z[j, 0] + data[q, 1, 1] * z[j, 1] + data[q, 1, 2] * z[j, 2]
+            s2 -= data[q, 2, 0] * z[j, 0] + data[q, 2, 1] * z[j, 1] + data[q, 2, 2] * z[j, 2]
+        for a in range(3):
+            z[i, a] = dinv[i, a, 0] * s0 + dinv[i, a, 1] * s1 + dinv[i, a, 2] * s2
+
+
+@njit(cache=True)
+def pcg_variant(mmode, pmode, indptr, indices, data, dinv, diagq, b, tol, maxit, x0, x):
+    """PCG from x0: matrix product ``_matvec_any(mmode)``, preconditioner pmode 0 block-Jacobi
+    (``dinv``), 1 symmetric block Gauss-Seidel (on the full matrix ``indptr``/``indices``/
+    ``data`` with ``diagq``; mmode 0 only). Returns (iterations, |r| / |b|)."""
+    n = b.shape[0]
+    r = np.empty((n, 3))
+    z = np.empty((n, 3))
+    p = np.empty((n, 3))
+    Ap = np.empty((n, 3))
+    w = np.empty((n, 3))
+    _matvec_any(mmode, indptr, indices, data, x0, Ap)
+    for i in range(n):
+        for a in range(3):
+            x[i, a] = x0[i, a]
+            r[i, a] = b[i, a] - Ap[i, a]
+    bn = math.sqrt(L._dot(b, b))
+    if bn == 0.0:
+        return 0, 0.0
+    if pmode == 0:
+        L.apply_blocks(dinv, r, z)
+    else:
+        _sgs(indptr, indices, data, dinv, diagq, r, z, w)
+    p[:] = z
+    rz = L._dot(r, z)
+    it = 0
+    rn = math.sqrt(L._dot(r, r))
+    if rn <= tol * bn:
+        return 0, rn / bn
+    while it < maxit:
+        _matvec_any(mmode, indptr, indices, data, p, Ap)
+        pAp = L._dot(p, Ap)
+        if pAp <= 0.0:
+            break
+        al = rz / pAp
+        for i in range(n):
+            for a in range(3):
+                x[i, a] += al * p[i, a]
+                r[i, a] -= al * Ap[i, a]
+        it += 1
+        rn = math.sqrt(L._dot(r, r))
+        if rn <= tol * bn:
+            break
+        if pmode == 0:
+            L.apply_blocks(dinv, r, z)
+        else:
+            _sgs(indptr, indices, data, dinv, diagq, r, z, w)
+        rz_new = L._dot(r, z)
+        beta = rz_new / rz
+        rz = rz_new
+        for i in range(n):
+            for a in range(3):
+                p[i, a] = z[i, a] + beta * p[i, a]
+    return it, rn / bn
+
+
+def load(path):
+    f = np.load(path)
+    indptr, indices, data = f["indptr"], f["indices"], f["data"]
+    return indptr, indices, np.ascontiguousarray(data), f["diag"], f["b"]
+
+
+def main(path, nxt=None, tol=1e-3, maxit=500):
+    indptr, indices, data, diag, b = load(path)
+    n = len(indptr) - 1
+    inv = np.zeros((n, 3, 3))
+    L.invert_blocks(data[diag], inv)
+    print(f"{Path(path).name}: {n} vertices, {len(indices)} blocks ({data.nbytes / 1e6:.1f} MB),"
+          f" numba threads {get_num_threads()}")
+    x = np.zeros((n, 3))
+    y = np.zeros((n, 3))
+    A = sp.bsr_matrix((data, indices, indptr), shape=(3 * n, 3 * n))
+    pv = np.random.default_rng(0).standard_normal((n, 3))
+    L.bsr_matvec(indptr, indices, data, pv, y)
+    parts = {
+        "bsr_matvec (numba)": lambda: L.bsr_matvec(indptr, indices, data, pv, y),
+        "scipy BSR A @ p": lambda: A @ pv.reshape(-1),
+        "apply_blocks (precond)": lambda: L.apply_blocks(inv, pv, y),
+        "dot": lambda: L._dot(pv, y),
+        "invert_blocks (setup)": lambda: L.invert_blocks(data[diag], inv),
+    }
+    print("part of a CG iteration, run alone: CPU ms per call")
+    for k, f in parts.items():
+        f()
+        print(f"  {k:28s} {best_ms(f, 5, 20):8.3f}")
+    w = {k: np.zeros((n, 3)) for k in ("r", "z", "p", "Ap")}
+    t = np.zeros((n, 2))
+    ref = np.zeros((n, 3))
+
+    def fused(xo):
+        return L.pcg_block_jacobi(indptr, indices, data, inv, b, tol, maxit, xo, w["r"], w["z"],
+                                  w["p"], w["Ap"])
+
+    def unfused(xo):
+        return L.pcg_block_jacobi_unfused(indptr, indices, data, inv, b, tol, maxit, xo, w["r"],
+                                          w["z"], w["p"], w["Ap"])
+
+    def par(xo):
+        return L.pcg_block_jacobi_par(indptr, indices, data, inv, b, tol, maxit + 1, 0.0, maxit,
+                                      xo, w["r"], w["z"], w["p"], w["Ap"], t)
+    up, ui, ud = _upper(indptr, indices, data)
+    d32 = data.astype(np.float32)
+    diagq = diag.astype(np.int64)
+    zero = np.zeros((n, 3))
+
+    def f32(xo):
+        return pcg_variant(0, 0, indptr, indices, d32, inv, diagq, b, tol, maxit, zero, xo)
+
+    def sym(xo):
+        return pcg_variant(1, 0, up, ui, ud, inv, diagq, b, tol, maxit, zero, xo)
+
+    def sgs(xo):
+        return pcg_variant(0, 1, indptr, indices, data, inv, diagq, b, tol, maxit, zero, xo)
+
+    def var_bj(xo):
+        return pcg_variant(0, 0, indptr, indices, data, inv, diagq, b, tol, maxit, zero, xo)
+    fused(ref)
+    print(f"upper triangle: {len(ui)} blocks ({ud.nbytes / 1e6:.1f} MB)")
+    print(f"solve (tol {tol:g}, cap {maxit}): iterations, residual, CPU ms/solve, CPU "
+          f"ms/iteration, wall ms/solve, wall ms/iteration, bitwise the solver's")
+    rows = [("fused (solver)", fused), ("unfused", unfused), ("prange (par)", par),
+            ("generic loop, block-Jacobi", var_bj), ("float32 matrix", f32),
+            ("upper triangle (symmetric)", sym), ("symmetric Gauss-Seidel", sgs)]
+    for name, f in rows:
+        xo = np.zeros((n, 3))
+        it, res = f(xo)
+        ms, wms = best_ms(lambda: f(xo), 3, wall=True)
+        print(f"  {name:30s} {it:5d} {res:9.2e} {ms:9.1f} {ms / max(it, 1):8.3f} "
+              f"{wms:9.1f} {wms / max(it, 1):8.3f} {str(np.array_equal(xo, ref)):>6s}",
+              flush=True)
+    if nxt is not None:
+        i2, x2, d2, g2, b2 = load(nxt)
+        inv2 = np.zeros((n, 3, 3))
+        L.invert_blocks(d2[g2], inv2)
+        for name, x0 in (("next system from 0", zero), ("next from previous step", ref)):
+            xo = np.zeros((n, 3))
+            it, res = pcg_variant(0, 0, i2, x2, d2, inv2, g2.astype(np.int64), b2, tol, maxit,
+                                  x0, xo)
+            print(f"  {name:30s} {it:5d} {res:9.2e}")
+
+
+if __name__ == "__main__":
+    main(*sys.argv[1:3])
