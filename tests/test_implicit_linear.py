@@ -1,6 +1,5 @@
-"""The implicit solver's linear algebra, exact speedups (issue #11: the cost per Newton and per
-CG iteration): the parallel block-Jacobi PCG and the hinges' blocks assembled straight into the
-Newton matrix are bitwise what they replace."""
+"""The implicit solver's linear algebra, exact speedups (issue #11: the cost per CG iteration):
+the parallel block-Jacobi PCG is bitwise the serial loop."""
 
 from __future__ import annotations
 
@@ -14,8 +13,9 @@ def test_parallel_pcg_is_bitwise_the_serial_loop():
     """pcg_block_jacobi_par (vertex loops in prange, dot products summed serially from
     per-vertex terms) returns bitwise the iterates, iteration count and residual of the serial
     fused loop at 1 and at every available thread count, converged, at the cap and with the
-    ``after`` stop; BlockJacobi.solve picks it from PARALLEL_MIN_VERTICES unknowns on more than
-    one thread with the same result. An iterate differs from the start (the test can fail)."""
+    ``after`` stop; BlockJacobi.solve picks it with PARALLEL_PCG from PARALLEL_MIN_VERTICES
+    unknowns on more than one thread, with the same result. An iterate differs from the start
+    (the test can fail)."""
     from lokigraph.behaviors.solvers.implicit import linear as L
 
     A, diag, b = _mesh_system(seed=3, side=20)
@@ -41,8 +41,8 @@ def test_parallel_pcg_is_bitwise_the_serial_loop():
             if maxit == 23:
                 assert want[0] == 23 and want[1] > tol
         set_num_threads(keep)
-        saved = L.PARALLEL_MIN_VERTICES
-        L.PARALLEL_MIN_VERTICES = 1  # the solver's switch, on this small system
+        saved = L.PARALLEL_MIN_VERTICES, L.PARALLEL_PCG
+        L.PARALLEL_MIN_VERTICES, L.PARALLEL_PCG = 1, True  # the switch, on this small system
         try:
             P = L.BlockJacobi(n)
             P.setup(A, diag)
@@ -54,63 +54,40 @@ def test_parallel_pcg_is_bitwise_the_serial_loop():
                                       *[np.zeros((n, 3)) for _ in range(4)])
             assert got == want and np.array_equal(x, x1)
         finally:
-            L.PARALLEL_MIN_VERTICES = saved
+            L.PARALLEL_MIN_VERTICES, L.PARALLEL_PCG = saved
     finally:
         set_num_threads(keep)
 
 
-def _hinges(side=9, seed=4):
-    """A crumpled side x side grid's hinge quads (i, j, k, l) with rest angles, compliances and
-    dropoffs, and the positions."""
-    rng = np.random.default_rng(seed)
-    g = np.stack(np.meshgrid(np.arange(side), np.arange(side), indexing="ij"), -1).reshape(-1, 2)
-    x = np.zeros((side * side, 3))
-    x[:, 0] = g[:, 0] * 0.1
-    x[:, 2] = g[:, 1] * 0.1
-    x += rng.normal(scale=0.02, size=x.shape)
-    quads = []
-    for i in range(side - 1):
-        for j in range(side - 1):
-            a, b, c, d = i * side + j, i * side + j + 1, (i + 1) * side + j, (i + 1) * side + j + 1
-            quads.append((b, c, a, d))  # the diagonal b-c shared by triangles (a,b,c), (b,d,c)
-            if j + 1 < side - 1:
-                quads.append((b, d, c, d + 1))  # edge b-d between this cell and the next
-    quads = np.array(quads, dtype=np.int64)
-    m = len(quads)
-    rest = rng.uniform(-0.3, 0.3, m)
-    alpha = 10.0 ** rng.uniform(-3, 1, m)
-    alpha[::7] = np.inf  # some off
-    dropoff = rng.uniform(0.0, 2.0, m)
-    return x, quads, rest, alpha, dropoff
+def test_gather_blocks_is_bitwise_the_scatter():
+    """energy.gather_blocks (the energies' blocks added matrix block by matrix block through
+    gather_map) gives bitwise the matrix of scatter_blocks, on top of blocks already there (as
+    after another energy), for stencils of 2 and 4 vertices whose local blocks land many to one
+    block and in an order unlike the rows' (shuffled terms); the matrix changes (the test can
+    fail)."""
+    from lokigraph.behaviors.solvers.implicit.energy import (build_pattern, gather_blocks,
+                                                             gather_map, scatter_blocks)
 
-
-def test_hinge_blocks_into_the_matrix_are_bitwise_the_scatter():
-    """dihedral_energy_into (the hinges' blocks added into the BSR data through the block map,
-    BendConstraint.energy_assemble) gives bitwise the energy, gradient and matrix of
-    dihedral_energy + scatter_blocks, also on top of blocks already in the matrix (another
-    energy's, as in the solver); the matrix is not zero (the test can fail)."""
-    from lokigraph.behaviors.materials.bend import dihedral_energy, dihedral_energy_into
-    from lokigraph.behaviors.solvers.implicit.energy import build_pattern, scatter_blocks
-
-    x, quads, rest, alpha, dropoff = _hinges()
-    n = len(x)
-    indptr, indices, diag, maps = build_pattern(n, [quads])
-    rng = np.random.default_rng(1)
-    base = rng.normal(size=(len(indices), 3, 3))
-    out = []
-    for into in (False, True):
-        data = base.copy()
-        grad = np.full((n, 3), 0.25)
-        if into:
-            E = dihedral_energy_into(x, quads, rest, alpha, dropoff, 2, grad, data, maps[0],
-                                     np.zeros((1, 1, 1, 3, 3)))
-        else:
-            h = np.zeros((len(quads), 4, 4, 3, 3))
-            E = dihedral_energy(x, quads, rest, alpha, dropoff, 2, grad, h)
-            scatter_blocks(data, maps[0], h)
-        out.append((E, grad, data))
-    (E0, g0, d0), (E1, g1, d1) = out
-    assert E0 == E1 and E0 > 0.0
-    assert np.array_equal(g0, g1)
-    assert np.array_equal(d0, d1)
-    assert np.abs(d0 - base).max() > 0.0
+    rng = np.random.default_rng(2)
+    side = 15
+    n = side * side
+    idx = np.arange(n).reshape(side, side)
+    edges = np.concatenate([np.stack([idx[:, :-1].ravel(), idx[:, 1:].ravel()], 1),
+                            np.stack([idx[:-1, :].ravel(), idx[1:, :].ravel()], 1)])
+    quads = np.stack([idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(),
+                      idx[1:, 1:].ravel()], 1)
+    edges = edges[rng.permutation(len(edges))]
+    quads = quads[rng.permutation(len(quads))]
+    indptr, indices, diag, maps = build_pattern(n, [edges, quads])
+    nb = len(indices)
+    base = rng.normal(size=(nb, 3, 3))
+    for mp, m, k in ((maps[0], len(edges), 2), (maps[1], len(quads), 4)):
+        h = rng.normal(size=(m, k, k, 3, 3)) * 10.0 ** rng.uniform(-8, 8, size=(m, 1, 1, 1, 1))
+        want = base.copy()
+        scatter_blocks(want, mp, h)
+        got = base.copy()
+        ptr, src = gather_map(mp, nb)
+        gather_blocks(got, ptr, src, h)
+        assert np.array_equal(got, want)
+        assert np.abs(want - base).max() > 0.0
+        assert ptr[-1] == m * k * k

@@ -327,8 +327,7 @@ class BendConstraint(ConstraintBehavior):
 # ==============================================================================================
 # Implicit energy (behaviors/solvers/implicit/energy.py has the protocol)
 # ==============================================================================================
-from ..solvers.implicit.energy import (_scalar_term, _scalar_term_into, grad_or_dummy,  # noqa: E402
-                                       hess_or_dummy, scatter_blocks)
+from ..solvers.implicit.energy import _scalar_term, grad_or_dummy, hess_or_dummy  # noqa: E402
 
 
 @njit(cache=True)
@@ -339,24 +338,8 @@ def dihedral_energy(x, quads, rest, alpha, dropoff, mode, grad, hess):
     ``dE/dC / C = k (1 + d |C| / pi)`` is the Nucleus kernel's ``bend_dropoff_scale``. Gradient
     exact (Bridson et al. 2003 angle gradients); Hessian Gauss-Newton
     ``k (1 + 2 d |C| / pi) grad theta grad theta^T`` (PSD; exact at the rest angle)."""
-    return _dihedral(x, quads, rest, alpha, dropoff, mode, grad, hess, np.zeros((1, 3, 3)),
-                     np.zeros((1, 1, 1), np.int64), False, np.zeros((4, 3)))
-
-
-@njit(cache=True)
-def dihedral_energy_into(x, quads, rest, alpha, dropoff, mode, grad, data, bmap, dummy_hess):
-    """:func:`dihedral_energy` with the Hessian blocks added straight into the BSR ``data``
-    through the block map ``bmap`` (m, 4, 4) (``energy_assemble``; bitwise the matrix of
-    ``dihedral_energy`` + ``scatter_blocks``)."""
-    return _dihedral(x, quads, rest, alpha, dropoff, mode, grad, dummy_hess, data, bmap, True,
-                     np.zeros((4, 3)))
-
-
-@_hot
-def _dihedral(x, quads, rest, alpha, dropoff, mode, grad, hess, data, bmap, into, g):
-    """The loop of :func:`dihedral_energy`; ``into``: blocks into ``data`` through ``bmap``
-    (``_scalar_term_into``), else written to ``hess``; ``g`` (4, 3) scratch."""
     E = 0.0
+    g = np.zeros((4, 3))
     for j in range(quads.shape[0]):
         al = alpha[j]
         if not (al > 0.0 and al < _INF):
@@ -380,12 +363,8 @@ def _dihedral(x, quads, rest, alpha, dropoff, mode, grad, hess, data, bmap, into
         g[1, 0], g[1, 1], g[1, 2] = g1x, g1y, g1z
         g[2, 0], g[2, 1], g[2, 2] = g2x, g2y, g2z
         g[3, 0], g[3, 1], g[3, 2] = g3x, g3y, g3z
-        if into:
-            _scalar_term_into(j, quads, 4, g, kk * (1.0 + 2.0 * d * ac / _PI),
-                              kk * (c + d * c * ac / _PI), mode, grad, data, bmap)
-        else:
-            _scalar_term(j, quads, 4, g, kk * (1.0 + 2.0 * d * ac / _PI), c,
-                         kk * (c + d * c * ac / _PI), mode, grad, hess)
+        _scalar_term(j, quads, 4, g, kk * (1.0 + 2.0 * d * ac / _PI), c,
+                     kk * (c + d * c * ac / _PI), mode, grad, hess)
     return E
 
 
@@ -554,33 +533,6 @@ def _bend_energy(self, ctx, d, x, grad, hess, opts):
     return E
 
 
-def _bend_energy_assemble(self, ctx, d, x, grad, A, maps, opts):
-    """``energy_assemble`` (the mode-2 call): the hinges' blocks straight into the Newton
-    matrix ``A`` (``dihedral_energy_into``), the curves' through a block array kept on the data
-    and ``scatter_blocks`` (bitwise the matrix of ``_bend_energy`` + the solver's scatter)."""
-    E = 0.0
-    s = 0
-    gr = grad_or_dummy(grad, opts)
-    q = d.parts.get("quads")
-    if q is not None:
-        qa = getattr(d, "implicit_alpha", None)
-        if qa is None:  # once, at the first substep (see hinge_alpha_capped)
-            qa = d.implicit_alpha = hinge_alpha_capped(x, q.idx, q.alpha, opts.hard_k)
-        E += dihedral_energy_into(x, q.idx, q.rest, qa, q.alpha2, opts.mode, gr, A, maps[s],
-                                  opts.dummy_hess)
-        s += 1
-    c = d.parts.get("curves")
-    if c is not None:
-        h = getattr(d, "implicit_hess_curves", None)
-        if h is None:
-            h = d.implicit_hess_curves = np.zeros((len(c.idx), 3, 3, 3, 3))
-        h[:] = 0.0
-        E += rod_bend_energy(x, c.idx, c.rest, c.alpha, opts.mode, gr, h)
-        scatter_blocks(A, maps[s], h)
-    return E
-
-
 # the implicit energy protocol on the Nucleus constraint type of this effect
 BendConstraint.energy_stencils = _bend_energy_stencils
 BendConstraint.energy = _bend_energy
-BendConstraint.energy_assemble = _bend_energy_assemble

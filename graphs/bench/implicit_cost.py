@@ -13,16 +13,26 @@ frame and ms per call:
 
 ``detect`` CollisionDetect.step; ``assemble`` the potential with gradient and Newton matrix
 (``_potential`` mode 2), of which ``assemble.elastic[T]`` the energy kernels of type T,
-``assemble.scatter`` their blocks' scatter into the matrix, ``assemble.limit`` the hard rows'
-strain-limit terms, ``assemble.rows`` the contact rows (``row_energy_coupled``), the rest
-(inertia, diagonal and Dirichlet rows) ``assemble.other``; ``precond`` the preconditioner's
+``assemble.scatter`` their blocks' scatter into the matrix (``gather_blocks``), ``assemble.limit``
+the hard rows' strain-limit terms, ``assemble.rows`` the contact rows (``row_energy_coupled``), the
+rest (inertia, diagonal and Dirichlet rows) ``assemble.other``; ``precond`` the preconditioner's
 setup; ``cg`` the linear solve (with the CG iterations per frame and ms per CG iteration);
 ``linesearch`` the line-search potentials (``_potential`` mode 0 inside a Newton iteration),
-``linesearch.rows`` their contact rows; ``start`` the potentials of ``start_at_rest``;
-``lag`` ``_lag_rows``; ``extend`` ``_extend_live``; ``residuals`` ``_row_residuals``;
-``project`` the projection pass (collision final rounds: re-detection, CCD: the safety
-projection of the contact rows); ``newton.other`` the rest of ``_newton``; ``frame.other`` the
-rest of the frame.
+``linesearch.rows`` their contact rows; ``start`` the potentials of ``start_at_rest``; ``lag``
+``_lag_rows``; ``extend`` ``_extend_live``; ``residuals`` ``_row_residuals``; ``project`` the
+projection pass (collision final rounds: re-detection, CCD: the safety projection of the contact
+rows); ``newton.other`` the rest of ``_newton``; ``frame.other`` the rest of the frame.
+
+``--ab COMMIT``: two simulations in one process, frames interleaved (ABBA), "before" with
+the block-Jacobi PCG of COMMIT's ``linear.py`` (serial) and the energies' blocks added by
+``scatter_blocks``, "after" the tree as it is; per frame whether positions
+and velocities are bitwise equal; then the stage table of each, side by side, and the ratio:
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_cost.py 128 10 --ab bc9a2e2
+    NUMBA_NUM_THREADS=2 .venv/bin/python graphs/bench/implicit_cost.py 128 10 --ab bc9a2e2 \
+        --parallel
+
+(``--parallel``: ``linear.PARALLEL_PCG`` on, the opt-in parallel PCG.)
 
 ``--save FRAME:ITER:PATH`` (repeatable) writes the Newton system of that frame's ITER-th Newton
 iteration (1-based, counted over the frame) to PATH (.npz: indptr, indices, data, diag, b,
@@ -42,6 +52,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import implicit_drop as D  # noqa: E402
 
 from lokigraph.api import compile_file  # noqa: E402
+from lokigraph.behaviors.solvers.implicit import energy as E  # noqa: E402
 from lokigraph.behaviors.solvers.implicit import solver as S  # noqa: E402
 from lokigraph.run import Simulation  # noqa: E402
 
@@ -106,7 +117,7 @@ def instrument(sim, clk, save=()):
             return f"{outer}.{name}" if outer in ("assemble", "linesearch") else None
         return key
     clk.wrap(S, "row_energy_coupled", sub("rows"))
-    clk.wrap(S, "scatter_blocks", sub("scatter"))
+    clk.wrap(S, "gather_blocks", sub("scatter"))
     orig_prepare = sv._prepare
 
     def prepare(ctx, d):
@@ -163,8 +174,91 @@ def derived(t, n):
     return t, n
 
 
+def before_linear(commit):
+    """COMMIT's ``behaviors/solvers/implicit/linear.py`` as a module (its own file under the
+    temp directory, so numba caches it)."""
+    import importlib
+    import subprocess
+    import tempfile
+    root = Path(__file__).resolve().parents[2]
+    src = subprocess.run(["git", "-C", str(root), "show",
+                          f"{commit}:behaviors/solvers/implicit/linear.py"],
+                         capture_output=True, text=True, check=True).stdout
+    d = Path(tempfile.gettempdir()) / "implicit_cost_before"
+    d.mkdir(exist_ok=True)
+    name = f"linear_{commit}"
+    f = d / f"{name}.py"
+    if not f.exists() or f.read_text() != src:
+        f.write_text(src)
+    sys.path.insert(0, str(d))
+    return importlib.import_module(name)
+
+
+def _gather_or_scatter(A, ptr, src, hl):
+    """The solver's ``gather_blocks`` call, or for the "before" simulation (``ptr`` None,
+    ``src`` the block map) ``scatter_blocks`` as before."""
+    if ptr is None:
+        return E.scatter_blocks(A, src, hl)
+    return E.gather_blocks(A, ptr, src, hl)
+
+
+def make_before(sim, lb):
+    """The "before" of ``--ab``: COMMIT's serial block-Jacobi PCG, the energies' blocks added by
+    ``scatter_blocks``."""
+    sv = [b.behavior for b in sim.schedule.all() if isinstance(b.behavior, S.ImplicitSolver)][0]
+    prepare = sv._prepare
+    S.gather_blocks = _gather_or_scatter
+
+    def prep(ctx, d):
+        prepare(ctx, d)
+        d.gather = [[(None, mp) for mp in e[3]] for e in d.energies]
+        pc = d.precond
+
+        def solve(A, b, tol, maxit, x, work, after=0, loose=0.0):
+            w = (work["r"], work["z"], work["p"], work["Ap"])
+            if after > 0:
+                return lb.pcg_block_jacobi_after(A.indptr, A.indices, A.data, pc.inv, b, tol,
+                                                 after, loose, maxit, x, *w)
+            return lb.pcg_block_jacobi(A.indptr, A.indices, A.data, pc.inv, b, tol, maxit, x,
+                                       *w)
+        pc.solve = solve
+    sv._prepare = prep
+
+
+def table(runs, first, frames, stats, wall):
+    """The stage table of each run side by side (CPU ms per frame, calls per frame, ms per
+    call) and the CPU ratio of the last to the first."""
+    m = max(frames - first + 1, 1)
+    der = {k: derived(*v) for k, v in runs.items()}
+    names = list(runs)
+    for k in names:
+        st = stats[k]
+        print(f"{k}: per frame Newton {st['newton_iterations'] / m:.1f}, CG "
+              f"{st['cg_iterations'] / m:.0f}, halvings {st['line_search_halvings'] / m:.1f}, "
+              f"wall {1e3 * wall[k] / m:.0f} ms, max strain {100 * st['strain']:.2f} %, max "
+              f"pairs {int(st['pairs'])}")
+    head = " ".join(f"{k + ' ms/fr':>14s} {'calls':>7s} {'ms/call':>8s}" for k in names)
+    print(f"{'stage':40s} {head} {'ratio':>6s}")
+    keys = [k for k in ORDER if any(k in der[r][0] for r in names)]
+    keys += sorted(set().union(*(der[r][0] for r in names)) - set(ORDER) - {"newton"})
+    for key in keys:
+        cells = []
+        for r in names:
+            t, cnt = der[r]
+            c = cnt.get(key, 0)
+            v = t.get(key, 0.0)
+            cells.append(f"{1e3 * v / m:14.1f} {c / m:7.1f} "
+                         f"{1e3 * v / c if c else float('nan'):8.3f}")
+        a, b = der[names[0]][0].get(key, 0.0), der[names[-1]][0].get(key, 0.0)
+        print(f"{key:40s} {' '.join(cells)} {b / a if a else float('nan'):6.3f}")
+    for r in names:
+        if stats[r]["cg_iterations"]:
+            print(f"{r}: {1e3 * der[r][0]['cg'] / stats[r]['cg_iterations']:.3f} ms per CG "
+                  f"iteration")
+
+
 def main(argv):
-    frames, first, save, ov = 10, 2, [], {}
+    frames, first, save, ov, ab = 10, 2, [], {}, None
     n = int(argv.pop(0)) if argv and argv[0].isdigit() else 128
     if argv and argv[0].isdigit():
         frames = int(argv.pop(0))
@@ -172,6 +266,11 @@ def main(argv):
         a = argv.pop(0)
         if a == "--from":
             first = int(argv.pop(0))
+        elif a == "--parallel":  # linear.PARALLEL_PCG on (opt-in; the same iterates)
+            from lokigraph.behaviors.solvers.implicit import linear as L
+            L.PARALLEL_PCG = True
+        elif a == "--ab":
+            ab = argv.pop(0)
         elif a == "--save":
             f, i, p = argv.pop(0).split(":", 2)
             save.append((int(f), int(i), p))
@@ -181,6 +280,8 @@ def main(argv):
     import tempfile
     p = Path(tempfile.mkdtemp()) / f"cloth_sphere_{n}_implicit.yaml"
     p.write_text(D.scene_text(n, 1, ov))
+    if ab is not None:
+        return main_ab(p, n, frames, first, ov, ab)
     sim = Simulation(compile_file(p))
     clk = Clock()
     _, state = instrument(sim, clk, save)
@@ -224,6 +325,70 @@ def main(argv):
               f"{1e3 * t[k] / c if c else float('nan'):9.3f}")
     if stats["cg_iterations"]:
         print(f"CG: {1e3 * t['cg'] / stats['cg_iterations']:.3f} ms per CG iteration")
+
+
+def main_ab(p, n, frames, first, ov, commit):
+    """``--ab``: before / after interleaved (module docstring)."""
+    from lokigraph.behaviors.collision.intersect import intersect_meshes
+
+    lb = before_linear(commit)
+    runs, clocks, stats, wall, sims = {}, {}, {}, {}, {}
+    for name in ("before", "after"):
+        sim = Simulation(compile_file(p))
+        if name == "before":
+            make_before(sim, lb)
+        clk = Clock()
+        instrument(sim, clk)
+        sims[name], clocks[name] = sim, clk
+        runs[name] = (defaultdict(float), defaultdict(int))
+        stats[name] = defaultdict(float)
+        wall[name] = 0.0
+    print(f"cloth_sphere_{n} implicit, 1 substep, overrides {ov}, numba threads "
+          f"{__import__('numba').get_num_threads()}, before = {commit}'s PCG",
+          flush=True)
+    same_all = True
+    for f in range(1, frames + 1):
+        order = ["before", "after"] if f % 2 else ["after", "before"]
+        q = {}
+        for name in order:
+            sim, clk = sims[name], clocks[name]
+            clk.clear()
+            t, w = time.process_time(), time.perf_counter()
+            st = sim.step_frame()
+            clk.t["total"] = time.process_time() - t
+            clk.n["total"] = 1
+            dw = time.perf_counter() - w
+            x = sim.state.particle_q
+            q[name] = np.concatenate([x, sim.state.particle_qd])
+            sd = sim.compiled.schedule.find("StretchConstraint")[0].data
+            strain = float((np.linalg.norm(x[sd.idx[:, 1]] - x[sd.idx[:, 0]], axis=1)
+                            / sd.rest - 1.0).max())
+            cl, ball = sim.compiled.scene.element("cloth"), sim.compiled.scene.element("ball")
+            cm = (x[cl.vertex_slice], cl.geometry.triangles)
+            pairs = int(intersect_meshes([cm], touching=False)[0])
+            _, pr = intersect_meshes([cm, (x[ball.vertex_slice], ball.geometry.triangles)],
+                                     touching=False)
+            pairs += int((pr[:, 0] != pr[:, 2]).sum())
+            print(f"frame {f} {name}: CPU {1e3 * clk.t['total']:.0f} ms (wall {1e3 * dw:.0f}),"
+                  f" Newton {st.get('newton_iterations', 0)}, CG {st.get('cg_iterations', 0)},"
+                  f" cg {1e3 * clk.t['cg']:.0f} ms, assemble {1e3 * clk.t['assemble']:.0f} ms, "
+                  f"strain {100 * strain:.2f} %, pairs {pairs}", flush=True)
+            stats[name]["strain"] = max(stats[name]["strain"], strain)
+            stats[name]["pairs"] = max(stats[name]["pairs"], pairs)
+            if f >= first:
+                wall[name] += dw
+                tt, tn = runs[name]
+                for k, v in clk.t.items():
+                    tt[k] += v
+                for k, v in clk.n.items():
+                    tn[k] += v
+                for k in ("newton_iterations", "cg_iterations", "line_search_halvings"):
+                    stats[name][k] += st.get(k, 0)
+        same = bool(np.array_equal(q["before"], q["after"]))
+        same_all &= same
+        print(f"frame {f}: positions and velocities bitwise equal: {same}", flush=True)
+    print(f"\nframes {first}..{frames}, bitwise equal in every frame: {same_all}")
+    table(runs, first, frames, stats, wall)
 
 
 if __name__ == "__main__":

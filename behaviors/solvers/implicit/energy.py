@@ -18,15 +18,6 @@ A constraint behavior takes part in the implicit solve by giving two methods (wr
 
 Optional:
 
-``energy_assemble(ctx, data, x, grad, A, maps, opts) -> float``
-    The mode-2 call (``opts.mode`` 2) adding the Hessian blocks straight into the BSR data
-    ``A`` (nb, 3, 3) through the block maps ``maps[s]`` (m, k, k) of its stencil sets,
-    instead of writing ``hess`` for the solver's ``scatter_blocks``: the same products added
-    in the same order (``_scalar_term_into``), so the matrix is bitwise the one of ``energy`` +
-    scatter, without the (m, k, k, 3, 3) block arrays (zeroed, written and read per Newton
-    iteration: 56 MB for the hinges of a 128 x 128 cloth). The solver calls it, when given, in
-    place of ``energy`` with mode 2.
-
 ``energy_update_multipliers(ctx, data, x, opts)`` / ``energy_multipliers(data)``
     Augmented Lagrangian rows (hard stretch, welds): the solver calls the update once per
     substep on the final positions; the multipliers live on the data (checkpointed by the
@@ -43,10 +34,10 @@ largest vertex mass of the row), i.e. ``hard_stiffness`` times the inertia of it
 one substep (distance rows add a multiplier: augmented Lagrangian, see
 ``stretch.spring_energy``); ``alpha = inf`` is off.
 
-Kernels here: the Gauss-Newton block writer of a scalar constraint energy (``_scalar_term``;
-``_scalar_term_into`` adds the blocks into the matrix for ``energy_assemble``),
+Kernels here: the Gauss-Newton block writer of a scalar constraint energy (``_scalar_term``),
 the penalty stiffness of a row (``row_k``), the block pattern (``build_pattern``) and the
-assembly scatter (``scatter_blocks``).
+assembly scatter (``scatter_blocks``; the solver adds the blocks by ``gather_blocks``, bitwise
+the same).
 """
 
 from __future__ import annotations
@@ -112,27 +103,6 @@ def _scalar_term(j, verts, nv, g, k, c, dedc, mode, grad, hess):
                         hess[j, a, b, r, s] = k * g[a, r] * g[b, s]
 
 
-@_hot
-def _scalar_term_into(j, verts, nv, g, k, dedc, mode, grad, data, bmap):
-    """:func:`_scalar_term` with the blocks added straight into the BSR ``data`` at
-    ``bmap[j, a, b]`` (``energy_assemble``): each block value is the same product, added in
-    the order ``scatter_blocks`` adds it (term, a, b, row, column), so the matrix is bitwise
-    the one of writing the blocks and scattering them."""
-    if mode >= 1:
-        for a in range(nv):
-            i = verts[j, a]
-            grad[i, 0] += dedc * g[a, 0]
-            grad[i, 1] += dedc * g[a, 1]
-            grad[i, 2] += dedc * g[a, 2]
-    if mode >= 2:
-        for a in range(nv):
-            for b in range(nv):
-                blk = bmap[j, a, b]
-                for r in range(3):
-                    for s in range(3):
-                        data[blk, r, s] += k * g[a, r] * g[b, s]
-
-
 @njit(cache=True)
 def scatter_blocks(data, bmap, hloc):
     """data[bmap[t, a, b]] += hloc[t, a, b] (3x3 blocks) for every term t."""
@@ -144,6 +114,52 @@ def scatter_blocks(data, bmap, hloc):
                 for r in range(3):
                     for s in range(3):
                         data[blk, r, s] += hloc[t, a, b, r, s]
+
+
+def gather_map(bmap: np.ndarray, nb: int):
+    """For ``gather_blocks``: per block of the matrix (nb blocks) the flat indices t k k + a k +
+    b of the local blocks ``bmap`` (m, k, k) sends there, ascending (a stable sort), as CSR
+    ``(ptr (nb + 1,), src)``."""
+    dst = bmap.reshape(-1)
+    src = np.argsort(dst, kind="stable").astype(np.int64)
+    ptr = np.zeros(nb + 1, np.int64)
+    np.cumsum(np.bincount(dst, minlength=nb), out=ptr[1:])
+    return ptr, src
+
+
+@njit(cache=True)
+def gather_blocks(data, ptr, src, hloc):
+    """``scatter_blocks`` block by block of the matrix: data[blk] += hloc[t, a, b] over the
+    local blocks sent to blk (``gather_map``), in ascending (t, a, b), the order
+    ``scatter_blocks`` adds them in, so ``data`` is bitwise the same. Each matrix block is read
+    and written once instead of once per local block (the stencil order of a mesh's terms is
+    not the order of the matrix rows: the hinges of a 128 x 128 cloth scatter in 13-21 ms, gather
+    in ~10.5 ms; its stretch rows 5.4-6.1 / 1.5 ms; graphs/bench/implicit_cost.py)."""
+    h9 = hloc.reshape(-1)
+    d9 = data.reshape(-1)
+    for blk in range(ptr.shape[0] - 1):
+        q0 = ptr[blk]
+        q1 = ptr[blk + 1]
+        if q0 == q1:
+            continue
+        o = 9 * blk
+        v0, v1, v2 = d9[o], d9[o + 1], d9[o + 2]
+        v3, v4, v5 = d9[o + 3], d9[o + 4], d9[o + 5]
+        v6, v7, v8 = d9[o + 6], d9[o + 7], d9[o + 8]
+        for q in range(q0, q1):
+            u = 9 * src[q]
+            v0 += h9[u]
+            v1 += h9[u + 1]
+            v2 += h9[u + 2]
+            v3 += h9[u + 3]
+            v4 += h9[u + 4]
+            v5 += h9[u + 5]
+            v6 += h9[u + 6]
+            v7 += h9[u + 7]
+            v8 += h9[u + 8]
+        d9[o], d9[o + 1], d9[o + 2] = v0, v1, v2
+        d9[o + 3], d9[o + 4], d9[o + 5] = v3, v4, v5
+        d9[o + 6], d9[o + 7], d9[o + 8] = v6, v7, v8
 
 
 def build_pattern(n: int, stencils: list[np.ndarray]):

@@ -1,6 +1,14 @@
 """Linear solves of the implicit solver: preconditioned conjugate gradients on the block-sparse
 Newton matrix (scipy.sparse BSR, 3x3 blocks), with a block-Jacobi preconditioner (the inverse of
-every 3x3 diagonal block) or, for comparison, pyamg smoothed aggregation (one V-cycle)."""
+every 3x3 diagonal block) or, for comparison, pyamg smoothed aggregation (one V-cycle).
+
+The block-Jacobi PCG runs in one compiled loop (``pcg_block_jacobi_after``); with ``PARALLEL_PCG``
+(opt-in) on more than one numba thread its vertex loops run in ``prange``
+(``pcg_block_jacobi_par``): both give bitwise the same iterates. One iteration is one read of every
+3x3 block; measured on the Newton matrix of the 128 x 128 drop's impact (19,203 vertices, 183,555
+blocks, 13.2 MB; graphs/bench/implicit_cost_cg.py) the product alone takes ~0.5 ms, about 2.7 ns (~8
+cycles) a block: bound by its 18 floating-point operations a block, not by the bytes (the matrix
+stored as its upper triangle, 55 % of the bytes, saves ~10 %; the data in float32 is slower)."""
 
 from __future__ import annotations
 
@@ -337,9 +345,11 @@ def pcg(A, b, precond, tol, maxit, x, work, after=0, loose=0.0):
     return it, rn / bn
 
 
-#: the block-Jacobi PCG runs its vertex loops on numba's threads (``pcg_block_jacobi_par``,
-#: bitwise the serial loop's iterates) from this many unknowns on, when more than one thread is
-#: set (graphs/bench/implicit_cost_cg.py measures both)
+#: opt-in (positions bitwise the same either way): the block-Jacobi PCG runs its vertex loops on
+#: numba's threads (``pcg_block_jacobi_par``) from ``PARALLEL_MIN_VERTICES`` unknowns on, when
+#: more than one thread is set. Off: on this 2-core machine shared by other jobs (load ~5) two
+#: threads took more wall time than one (graphs/bench/implicit_cost.py --ab, module docstring)
+PARALLEL_PCG = False
 PARALLEL_MIN_VERTICES = 4096
 
 
@@ -360,9 +370,10 @@ class BlockJacobi:
 
     def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0):
         """The whole PCG in one compiled loop (see :func:`pcg_block_jacobi`; with ``after``
-        > 0 :func:`pcg_block_jacobi_after`; on more than one numba thread and from
-        ``PARALLEL_MIN_VERTICES`` unknowns :func:`pcg_block_jacobi_par`, the same iterates)."""
-        if len(b) >= PARALLEL_MIN_VERTICES and get_num_threads() > 1:
+        > 0 :func:`pcg_block_jacobi_after`; with ``PARALLEL_PCG`` on more than one numba
+        thread and from ``PARALLEL_MIN_VERTICES`` unknowns :func:`pcg_block_jacobi_par`, the
+        same iterates)."""
+        if PARALLEL_PCG and len(b) >= PARALLEL_MIN_VERTICES and get_num_threads() > 1:
             return pcg_block_jacobi_par(A.indptr, A.indices, A.data, self.inv, b, tol,
                                         after if after > 0 else maxit + 1, loose, maxit, x,
                                         work["r"], work["z"], work["p"], work["Ap"], self.t)

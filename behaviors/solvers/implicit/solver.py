@@ -175,7 +175,7 @@ from ..damping import apply_damping, bind_damping
 from .contact import (contact_energy_al, extend_live, lag_contacts_al, lag_rows, lag_rows_live,
                       lag_rows_sel, mark_closing, row_energy, row_energy_coupled, row_residuals,
                       safety_project, start_targets_on, update_contact_multipliers)
-from .energy import EnergyOptions, build_pattern, limit_energy, scatter_blocks
+from .energy import EnergyOptions, build_pattern, gather_blocks, gather_map, limit_energy
 from .compliant import compliant_edges, shape_energy
 from .linear import BlockJacobi, Identity, SmoothedAggregation, invert_blocks
 
@@ -602,6 +602,7 @@ class _ImplicitData:
     comp_nrm: np.ndarray | None = None
     ready: bool = False
     energies: list = field(default_factory=list)  # (behavior, data, maps, hloc list)
+    gather: list = field(default_factory=list)  # per energy, per stencil set: gather_map
     projected: list = field(default_factory=list)
     A: object = None
     diag: np.ndarray | None = None
@@ -731,12 +732,14 @@ class ImplicitSolver(Behavior):
         if not np.shares_memory(d.A.data, data):  # pragma: no cover - scipy keeps it today
             raise RuntimeError("scipy copied the BSR data array")
         k = 0
+        d.gather = []
         for e in energies:
             ns = len(e[2])
             e.append(maps[k:k + ns])
-            # block arrays for the scatter; none for an energy_assemble (blocks into A)
-            e.append(None if getattr(e[0], "energy_assemble", None) is not None else
-                     [np.zeros((s.shape[0], s.shape[1], s.shape[1], 3, 3)) for s in e[2]])
+            # per stencil set the blocks' gather map (energy.gather_blocks: the scatter,
+            # matrix block by block)
+            d.gather.append([gather_map(mp, nb) for mp in maps[k:k + ns]])
+            e.append([np.zeros((s.shape[0], s.shape[1], s.shape[1], 3, 3)) for s in e[2]])
             k += ns
         d.energies = energies
         d.projected = projected
@@ -815,15 +818,12 @@ class ImplicitSolver(Behavior):
         if mode >= 2:
             A = d.A.data
             A[:] = 0.0
-            for b, bd, st, maps, hloc in d.energies:
-                if hloc is None:  # energy_assemble: its blocks straight into A
-                    E += b.energy_assemble(ctx, bd, x, grad, A, maps, opts)
-                    continue
+            for (b, bd, st, maps, hloc), gmaps in zip(d.energies, d.gather):
                 for hl in hloc:
                     hl[:] = 0.0
                 E += b.energy(ctx, bd, x, grad, hloc, opts)
-                for mp, hl in zip(maps, hloc):
-                    scatter_blocks(A, mp, hl)
+                for (ptr, src), hl in zip(gmaps, hloc):
+                    gather_blocks(A, ptr, src, hl)
             E += self._limit_energy(d, x, mode, opts, grad, A)
             if d.shape_edges is not None:  # compliant_shape_stiffness
                 E += shape_energy(x, xt, d.shape_edges, d.shape_kbar,
