@@ -37,6 +37,43 @@ and velocities are bitwise equal; then the stage table of each, side by side, an
 ``--save FRAME:ITER:PATH`` (repeatable) writes the Newton system of that frame's ITER-th Newton
 iteration (1-based, counted over the frame) to PATH (.npz: indptr, indices, data, diag, b,
 fixed) for ``implicit_cost_cg.py``.
+
+Measured (issue #11, this machine shared with three other jobs, load 3-5; 1 substep, defaults):
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_cost.py 128 10    # at bc9a2e2
+
+frames 2-10 (frames 2-5 fall freely, 0.26 s each; 6-10 the impact, 5.6-20.7 s each, Newton at
+its cap of 20 and CG at its 500 cap in nearly every Newton iteration), CPU ms per frame (share),
+calls per frame, ms per call; 11.6 Newton and 4,720 CG iterations per frame:
+
+    total 7,832 | cg 3,160 (40 %), 11.6 solves x 273 ms, 0.67 ms per CG iteration
+    detect 1,171 (15 %) | extend (_extend_live) 838 (11 %), 13.1 x 64 ms | project 808 (10 %)
+    lag (_lag_rows) 606 (8 %), 13.6 x 45 ms | assemble 557 (7 %), 11.6 x 48 ms: scatter 294
+    (23.1 x 12.7 ms), hinge kernel 91 (7.8 ms), stretch 17, contact rows 62 (2 x 2.7 ms), limit
+    9, the rest 84 (7.3 ms) | line search 510 (6.5 %), 31.7 potentials x 16 ms: contact rows
+    312 (2 x 4.9 ms), hinges 119 (3.7 ms), stretch 23, the rest 57 | precond setup 11 (0.9 ms)
+    | newton.other 88 | frame.other 80 | row residuals 3
+
+Before / after this bench's commits (``--ab bc9a2e2``, interleaved, positions and velocities
+bitwise equal in every frame of every run; CPU ms per frame over frames 2..N, ratio):
+
+    128 (10 frames), 1 thread, run 1: total 8,180 -> 8,046 (0.984); cg 3,423 -> 3,249 (0.949,
+        0.725 -> 0.688 ms per CG iteration); assemble 517 -> 511 (the hinges' blocks added
+        straight into the matrix, since reverted: no gain)
+    128 (10 frames), 1 thread, run 2 (gather_blocks): total 8,065 -> 8,212 (1.018); cg 3,403 ->
+        3,581 (1.052, 0.721 -> 0.759 ms per CG iteration: the loop's gain is within this
+        machine's noise here); assemble 508 -> 438 (0.863), scatter 10.9 -> 7.5 ms per call
+    128 (10 frames), 2 threads with the parallel PCG (linear.PARALLEL_PCG, before the flag):
+        wall 15,943 -> 20,347 ms per frame (1.28), CPU 8,263 -> 8,619: opt-in
+    64 (12 frames), 1 thread: total 1,837 -> 1,710 (0.931); cg 906 -> 820 (0.904; 0.206 ->
+        0.186 ms per CG iteration); wall 3,809 -> 3,505
+    64 (12 frames), 2 threads, --parallel: CPU 1,800 -> 2,114 (1.174), wall 5,520 -> 5,186
+        (0.94); cg 0.200 -> 0.271 CPU ms per CG iteration (both threads' CPU)
+    64 (12 frames), 2 threads, serial PCG: total 1,788 -> 1,695 (0.948), wall 3,722 -> 3,441
+
+The PCG loops alone on three saved 128 x 128 impact systems (frame 7 iteration 1, frame 8
+iterations 10 and 11; 500 iterations each, 12 interleaved repeats): 0.783 -> 0.709 ms per CG
+iteration (medians; paired ratio 0.910).
 """
 
 from __future__ import annotations

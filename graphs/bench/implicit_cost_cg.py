@@ -3,6 +3,7 @@ iteration): what one CG iteration costs by part, and the variants of the solve m
 side on the same system.
 
     NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_cost_cg.py SYSTEM.npz [NEXT.npz]
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_cost_cg.py --ab COMMIT SYS.npz ...
 
 SYSTEM.npz is a Newton system ``graphs/bench/implicit_cost.py --save FRAME:ITER:PATH`` wrote
 (the BSR matrix of 3x3 blocks, its diagonal blocks' indices, the right-hand side -g). NEXT.npz
@@ -19,7 +20,26 @@ with its vertex loops in prange (``pcg_block_jacobi_par``, at the thread count o
 and, changing the iterates: the matrix in float32, the matrix stored as its upper triangle
 (symmetric product; in the generic loop and fused as the solver's loop,
 ``pcg_block_jacobi_upper``), symmetric block Gauss-Seidel as the preconditioner, and the previous
-Newton step as the initial guess.
+Newton step as the initial guess. ``--ab COMMIT``: COMMIT's PCG loop against the tree's,
+interleaved on each system.
+
+Measured on the 128 x 128 drop's frame 8, Newton iteration 10 (``implicit_cost.py 128 10 --save
+8:10:a8_10.npz --save 8:11:a8_11.npz --save 7:1:a7_1.npz``; 19,203 vertices, 183,555 blocks,
+13.2 MB; 1 thread, load ~3; at bc9a2e2 unless said): the product alone 0.50 ms (scipy's BSR
+product 0.96 ms), the preconditioner 0.05 ms, a dot product 0.016 ms, the setup (inverting the
+diagonal blocks) 0.40 ms; a solve runs to the 500 cap at relative residual 5.1e-3 in 329 ms
+(0.66 ms per iteration; unfused 0.67). Changing the iterates: the matrix in float32 0.90 ms per
+iteration (slower), the upper triangle in the generic loop 0.60 (generic full 0.79), fused 0.58-
+0.62 against 0.62-0.69; symmetric block Gauss-Seidel reaches 1e-3 in 386 iterations (block-Jacobi
+5.1e-3 at 500) but at 1.94 ms per iteration (747 ms a solve against 329); the next Newton
+system's solve from the previous Newton step instead of 0: still 500 iterations, residual 3.4e-3
+instead of 4.8e-3. pyamg smoothed aggregation on these systems (graphs/bench/implicit_speedups.py):
+setup 1.3 s, 3.6 s a solve. So on these systems no preconditioner tried pays, and the
+block-Jacobi iteration is bound by the product's arithmetic (~2.7 ns a block).
+
+``--ab bc9a2e2`` on the three systems (12 interleaved repeats each): 0.783 -> 0.709 ms per CG
+iteration (medians), paired ratio 0.910: the flat view of the blocks and z formed in the x/r
+pass.
 """
 
 from __future__ import annotations
@@ -403,5 +423,42 @@ def main(path, nxt=None, tol=1e-3, maxit=500):
             print(f"  {name:30s} {it:5d} {res:9.2e}")
 
 
+def ab(commit, paths, reps=12):
+    """COMMIT's block-Jacobi PCG loop against the tree's, interleaved (ABBA) ``reps`` times on
+    each saved system (500 iterations at the defaults' tolerance): CPU ms per CG iteration
+    (medians) and the paired ratio."""
+    import implicit_cost as C
+
+    lb = C.before_linear(commit)
+    res = {"before": [], "after": []}
+    for path in paths:
+        indptr, indices, data, diag, b = load(path)
+        n = len(indptr) - 1
+        inv = np.zeros((n, 3, 3))
+        L.invert_blocks(data[diag], inv)
+        w = [np.zeros((n, 3)) for _ in range(4)]
+        x = np.zeros((n, 3))
+        f = {"before": lambda: lb.pcg_block_jacobi(indptr, indices, data, inv, b, 1e-3, 500, x,
+                                                   *w),
+             "after": lambda: L.pcg_block_jacobi(indptr, indices, data, inv, b, 1e-3, 500, x,
+                                                 *w)}
+        for g in f.values():
+            g()
+        for rep in range(reps):
+            for k in (("before", "after") if rep % 2 == 0 else ("after", "before")):
+                t = time.process_time()
+                it, _ = f[k]()
+                res[k].append(1e3 * (time.process_time() - t) / it)
+    for k, v in res.items():
+        print(f"{k}: median {np.median(v):.3f} ms per CG iteration (min {min(v):.3f}, "
+              f"{len(v)} solves)")
+    r = np.array(res["after"]) / np.array(res["before"])
+    print(f"paired ratio after / before: median {np.median(r):.3f}")
+
+
 if __name__ == "__main__":
-    main(*sys.argv[1:3])
+    if sys.argv[1] == "--ab":
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        ab(sys.argv[2], sys.argv[3:])
+    else:
+        main(*sys.argv[1:3])
