@@ -54,6 +54,14 @@ calls per frame, ms per call; 11.6 Newton and 4,720 CG iterations per frame:
     312 (2 x 4.9 ms), hinges 119 (3.7 ms), stretch 23, the rest 57 | precond setup 11 (0.9 ms)
     | newton.other 88 | frame.other 80 | row residuals 3
 
+The impact frames alone on the final tree of this bench's commits (``128 10 --from 6``, frames
+6-10: 20 Newton, 8,497 CG iterations, 33.4 halvings per frame): total 13,074 | cg 5,397 (41 %),
+20 x 270 ms, 0.635 ms per CG iteration | detect 1,957 (15 %) | extend 1,470 (11 %), 22 x 67 ms |
+project 1,331 (10 %) | lag 1,020 (8 %), 22 x 46 ms | line search 910 (7 %), 55.4 x 16.4 ms:
+contact rows 587, hinges 197, stretch 40, the rest 87 | assemble 718 (5.5 %), 20 x 36 ms:
+scatter 270 (40 x 6.8 ms), hinges 163, rows 111, the rest 125, stretch 29, limit 20 | newton.other
+141 | frame.other 106 | precond 19.
+
 Before / after this bench's commits (``--ab bc9a2e2``, interleaved, positions and velocities
 bitwise equal in every frame of every run; CPU ms per frame over frames 2..N, ratio):
 
