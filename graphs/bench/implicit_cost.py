@@ -71,6 +71,9 @@ bitwise equal in every frame of every run; CPU ms per frame over frames 2..N, ra
     128 (10 frames), 1 thread, run 2 (gather_blocks): total 8,065 -> 8,212 (1.018); cg 3,403 ->
         3,581 (1.052, 0.721 -> 0.759 ms per CG iteration: the loop's gain is within this
         machine's noise here); assemble 508 -> 438 (0.863), scatter 10.9 -> 7.5 ms per call
+    128 (10 frames), 2 threads, serial PCG (the defaults): total 7,102 -> 7,299 (1.028); cg
+        3,033 -> 3,061 (1.009); assemble 457 -> 384 (0.841), scatter 9.6 -> 6.4 ms per call;
+        wall 13,255 -> 14,635 (detect 935 -> 1,109: noise, unchanged code)
     128 (10 frames), 2 threads with the parallel PCG (linear.PARALLEL_PCG, before the flag):
         wall 15,943 -> 20,347 ms per frame (1.28), CPU 8,263 -> 8,619: opt-in
     64 (12 frames), 1 thread: total 1,837 -> 1,710 (0.931); cg 906 -> 820 (0.904; 0.206 ->
