@@ -420,3 +420,61 @@ def test_sleeve_elbow_ring_over_the_elbow_is_forced_by_the_arm(tmp_path):
           cs.ring_girth(q, X, sleeve, arm, 9))
     assert cs.ring_girth(q, X, sleeve, arm, 9)[2] < 0.0
     assert cs.inside_arm(q, sleeve, arm) == 0
+
+
+PINCH = """lokigraph: 1
+frames: {start: 1, end: 3, fps: 24}
+substeps: 2
+gravity: [0, 0, 0]
+elements:
+  - name: cloth
+    geometry: {generator: grid, params: {size: [0.2, 0.2], resolution: [8, 8], plane: xz}}
+    components:
+      Dynamic: {mass_density: 0.15}
+      DiscreteShell: {}
+      Collider: {thickness: 0.002}
+  - name: top
+    geometry: {generator: grid, params: {size: [0.3, 0.3], resolution: [6, 6], plane: xz,
+                                         center: [0, 0.003, 0]}}
+    components: {Kinematic: {}, Collider: {thickness: 0.002}}
+  - name: bottom
+    geometry: {generator: grid, params: {size: [0.3, 0.3], resolution: [6, 6], plane: xz,
+                                         center: [0, -0.003, 0]}}
+    components: {Kinematic: {}, Collider: {thickness: 0.002}}
+  - name: contact
+    components:
+      CollisionGroup: {members: [cloth, top, bottom], methods: [vertex_face, edge_edge, self]}
+"""
+
+
+@pytest.mark.parametrize("plates", [("top", "bottom"), ("top",)])
+def test_pinch_between_two_colliders_gets_the_pinch_passes(tmp_path, plates):
+    """strain_limit.inextensible_pinch_iterations (40, set here): a cloth held between two
+    plates facing each other (3 mm from each) is pinched and its substeps get that many joint
+    passes; with one plate it is not (its contacts' normals all point one way) and the joint
+    passes stay inextensible_joint_iterations (10)."""
+    s = yaml.safe_load(PINCH)
+    s["graph_overrides"] = {"strain_limit": {"inextensible_pinch_iterations": 40,
+                                             "inextensible_joint_iterations": 10}}
+    s["elements"] = [e for e in s["elements"] if e["name"] in ("cloth", "contact", *plates)]
+    s["elements"][-1]["components"]["CollisionGroup"]["members"] = ["cloth", *plates]
+    f = tmp_path / "pinch.yaml"
+    f.write_text(yaml.safe_dump(s))
+    c = compile_file(f)
+    sim = Simulation(c)
+    beh = c.schedule.find("StrainLimitConstraint")[0].behavior
+    passes, n0 = [], beh.joint_iterations
+
+    def n_it():  # the joint passes the final collision rounds ask for, per call
+        passes.append(n0())
+        return passes[-1]
+
+    beh.joint_iterations = n_it
+    st = sim.step_frame()
+    assert len(passes) >= 2  # the final rounds and the CCD rounds of each substep
+    if len(plates) == 2:
+        assert st["max_pinched"] >= 49  # the cloth's inner 7 x 7 vertices at least
+        assert set(passes) == {40}
+    else:
+        assert st.get("max_pinched", 0) == 0
+        assert set(passes) == {10}

@@ -22,6 +22,7 @@ from lokigraph.components.core import Dynamic
 from lokigraph.components.materials import DiscreteShell, Rod
 
 from .. import topology as T
+from ..collision.narrowphase import _pt_tri_sq, _seg_seg_sq
 
 
 @njit(cache=True, parallel=True)
@@ -61,6 +62,61 @@ def strain_excess(p, edges, limit):
     return worst
 
 
+#: cosine of the angle between two collider contacts' outward normals at a vertex over which the
+#: vertex counts as pinched (between two collider surfaces): 0.5 = more than 120 degrees apart
+PINCH_COS = -0.5
+
+
+@njit(cache=True)
+def count_pinched(p, w, cloth, rows, nrm, target, onesided, is_vf, first, seen):
+    """Vertices (w > 0, ``cloth``) of collider contact rows (rows with a vertex not of the
+    cloth: kinematic, w = 0, or of another element, the compliant skin of an arm) within
+    twice the row's target distance at ``p``, whose outward normals (from the collider to the
+    vertex: the row's normal, oriented along the closest points' direction as ``project_vf`` /
+    ``project_ee`` do, times the sign of the vertex's coefficient, those over 0.05 as in
+    strain_limit_global.contact_normals) make more than the angle of ``PINCH_COS`` with the
+    first such normal met at that vertex: cloth held between two collider surfaces facing each
+    other (a crease). ``first`` (n, 3) and ``seen`` (n,) are scratch (``seen`` cleared by the
+    caller). Returns the count of pinched vertices (each counted once)."""
+    k = 0
+    for r in range(rows.shape[0]):
+        i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+        if cloth[i0] and cloth[i1] and cloth[i2] and cloth[i3]:
+            continue
+        if is_vf:
+            d2, b0, b1, b2 = _pt_tri_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1],
+                                        p[i1, 2], p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0],
+                                        p[i3, 1], p[i3, 2])
+            c0, c1, c2, c3 = 1.0, -b0, -b1, -b2
+        else:
+            d2, s, t = _seg_seg_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
+                                   p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])
+            c0, c1, c2, c3 = 1.0 - s, s, -(1.0 - t), -t
+        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+        dv0 = c0 * p[i0, 0] + c1 * p[i1, 0] + c2 * p[i2, 0] + c3 * p[i3, 0]
+        dv1 = c0 * p[i0, 1] + c1 * p[i1, 1] + c2 * p[i2, 1] + c3 * p[i3, 1]
+        dv2 = c0 * p[i0, 2] + c1 * p[i1, 2] + c2 * p[i2, 2] + c3 * p[i3, 2]
+        if not (is_vf and onesided[r]):
+            dist = np.sqrt(d2)
+            if dist > 1e-12 and dv0 * n0 + dv1 * n1 + dv2 * n2 > 0.0:
+                n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
+        if dv0 * n0 + dv1 * n1 + dv2 * n2 >= 2.0 * target[r]:
+            continue
+        for q in range(4):
+            v = rows[r, q]
+            cf = (c0, c1, c2, c3)[q]
+            if w[v] <= 0.0 or not cloth[v] or abs(cf) <= 0.05:
+                continue
+            sg = 1.0 if cf > 0.0 else -1.0
+            if seen[v] == 0:
+                first[v, 0], first[v, 1], first[v, 2] = sg * n0, sg * n1, sg * n2
+                seen[v] = 1
+            elif seen[v] == 1 and sg * (first[v, 0] * n0 + first[v, 1] * n1
+                                        + first[v, 2] * n2) < PINCH_COS:
+                seen[v] = 2
+                k += 1
+    return k
+
 class StrainLimitParams(ConstraintParams):
     mode: Literal["constitutive", "post"] = Field(
         "constitutive", description="'constitutive': solved together with the contacts; "
@@ -76,6 +132,14 @@ class StrainLimitParams(ConstraintParams):
         "(graphs/bench/cloth_strain.py, 24 frames): cloth_on_sphere 7.5 % instead of 6.6 % "
         "at -18 % CPU per frame, sleeve_elbow 20.7 % instead of 10.1 % at -16 %. 3 in setting B "
         "of global_chord (with the global step, which holds what the joint passes leave).")
+    inextensible_pinch_iterations: int | None = Field(
+        None, ge=1, le=10000, description="Most joint passes (instead of "
+        "inextensible_joint_iterations) in a substep whose contacts pinch inextensible cloth "
+        "between two collider surfaces facing each other (a vertex with collider contacts "
+        "whose outward normals are more than 120 degrees apart, count_pinched: a sleeve in a "
+        "bending elbow's crease); null = inextensible_joint_iterations in every substep (the "
+        "step before, bitwise). Without a pinch the joint passes pay for little (the global "
+        "step holds the rest) and every one costs a full contact sweep.")
     tolerance: float = Field(1e-3, ge=0, description="Accepted relative excess over the limit.")
     inextensible_max_strain: float | None = Field(
         0.05, ge=0, le=10.0, description="Strain limit eps_e [-] given to every inextensible "
@@ -327,6 +391,7 @@ class _Limits:
     color_ptr: np.ndarray
     lam: None = None
     glob: object = None
+    pinch: tuple | None = None  # count_pinched's scratch (first normals, seen flags, cloth mask)
 
 
 class StrainLimitConstraint(ConstraintBehavior):
@@ -341,9 +406,15 @@ class StrainLimitConstraint(ConstraintBehavior):
     def bind(self, ctx, elements):
         es, lims, shell = [], [], []
         auto = self.params.inextensible_max_strain
-        if (getattr(ctx.scene.spec, "solver", "nucleus") != "nucleus"
-                and "inextensible_max_strain" not in self.params.model_fields_set):
+        nucleus = getattr(ctx.scene.spec, "solver", "nucleus") == "nucleus"
+        if not nucleus and "inextensible_max_strain" not in self.params.model_fields_set:
             auto = None  # a Nucleus default: other solvers get it only when set explicitly
+        # so are the global step and the pinch's joint passes (Nucleus defaults since stop 29)
+        self._global_passes = (self.params.global_passes if nucleus or "global_passes"
+                               in self.params.model_fields_set else 0)
+        self._pinch_n = (self.params.inextensible_pinch_iterations if nucleus
+                         or "inextensible_pinch_iterations" in self.params.model_fields_set
+                         else None)
         self._painted = False
         for e in elements:
             c = e.get(DiscreteShell) or e.get(Rod)
@@ -375,15 +446,39 @@ class StrainLimitConstraint(ConstraintBehavior):
         perm, ptr = T.color_constraints(edges, vertex_count=ctx.model.particle_count)
         d = _Limits(np.ascontiguousarray(edges[perm]), np.ascontiguousarray(limit[perm]), ptr)
         sel = np.flatnonzero(np.concatenate(shell)[perm])
-        if self.params.global_passes > 0 and self.params.mode == "constitutive" and len(sel):
+        if self._global_passes > 0 and self.params.mode == "constitutive" and len(sel):
             from .strain_limit_global import GlobalStrainStep
 
             d.glob = GlobalStrainStep(ctx.model.particle_count, d.edges, d.limit, sel)
             d.glob.set_colors(d.color_ptr)
+        if self._pinch_n is not None and not self._painted:
+            n = ctx.model.particle_count
+            cloth = np.zeros(n, np.bool_)
+            cloth[d.edges[sel]] = True
+            d.pinch = (np.zeros((n, 3)), np.zeros(n, np.int8), cloth)
         return d
 
     def begin_substep(self, ctx, d):
-        pass
+        """With ``inextensible_pinch_iterations``: this substep's joint passes, that many when
+        the substep's contacts pinch the cloth (``count_pinched``), else
+        inextensible_joint_iterations."""
+        self._joint_n = None
+        if d is None or d.pinch is None:
+            return
+        c = ctx.state.fields.get("contacts")
+        k = 0
+        if c is not None and (len(c.vf) or len(c.ee)):
+            first, seen, cloth = d.pinch
+            seen[:] = 0
+            w = ctx.model.particle_inv_mass
+            x = ctx.state.particle_q
+            k = count_pinched(x, w, cloth, c.vf, c.vf_n, c.vf_target, c.vf_onesided, True,
+                              first, seen)
+            k += count_pinched(x, w, cloth, c.ee, c.ee_n, c.ee_target, c.vf_onesided[:0],
+                               False, first, seen)
+        ctx.stats["max_pinched"] = max(ctx.stats.get("max_pinched", 0), k)
+        if k:
+            self._joint_n = self._pinch_n
 
     def project(self, ctx, d, p):
         if self.params.mode == "constitutive":
@@ -397,8 +492,9 @@ class StrainLimitConstraint(ConstraintBehavior):
     def joint_iterations(self) -> int:
         if self.params.mode != "constitutive":
             return 0
-        return (self.params.joint_iterations if getattr(self, "_painted", True)
-                else self.params.inextensible_joint_iterations)
+        if getattr(self, "_painted", True):
+            return self.params.joint_iterations
+        return getattr(self, "_joint_n", None) or self.params.inextensible_joint_iterations
 
     def satisfied(self, ctx, d, p) -> bool:
         return self.params.mode != "constitutive" or strain_excess(
@@ -414,7 +510,7 @@ class StrainLimitConstraint(ConstraintBehavior):
             return
         n0 = d.glob.stats["passes"]
         d.glob.run(p, ctx.model.particle_inv_mass, ctx.state.fields.get("contacts"),
-                   self.params.global_passes,
+                   self._global_passes,
                    (self.params.tolerance if self.params.global_tolerance is None
                     else self.params.global_tolerance), self.params.global_near,
                    self.params.global_alpha, self.params.global_contacts,

@@ -102,31 +102,50 @@ if str(ROOT) not in sys.path:
 #: the Nucleus defaults before issue #13 (the solver before the long-range rows, bitwise)
 BEFORE = {"stretch": {"long_range_levels": 0, "sweeps": 1, "inextensible_compression": None},
           "strain_limit": {"inextensible_max_strain": None}}
-LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3, "inextensible_compression": None},
+LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3, "inextensible_compression": None,
+                          "joint_long_range": False},
               "strain_limit": {"inextensible_max_strain": None}}
-#: the strain-limit defaults, explicit: the 5 % inextensible strain limit with 10 joint
-#: passes, Gauss-Seidel only (without global_passes the step's other parameters are never read)
+#: the strain-limit defaults before stop 29, explicit: the 5 % inextensible strain limit with 10
+#: joint passes, Gauss-Seidel only (without global_passes the step's other parameters are never
+#: read), no pinch passes, no long-range rows in the joint passes
 BEFORE_GLOBAL = {"strain_limit": {"inextensible_max_strain": 0.05,
-                                  "inextensible_joint_iterations": 10, "global_passes": 0}}
-IN_CONTACT_HARD = {"stretch": {"inextensible_compression": None}, **BEFORE_GLOBAL}
-#: the defaults now (the former opt-in 'in_contact'): long-range rows 5 levels, 3 sweeps, the
-#: 5 % inextensible strain limit with 10 joint passes, edges near contacts compliant in
-#: compression at 10 N/m
+                                  "inextensible_joint_iterations": 10, "global_passes": 0,
+                                  "inextensible_pinch_iterations": None},
+                 "stretch": {"joint_long_range": False}}
+IN_CONTACT_HARD = {"strain_limit": BEFORE_GLOBAL["strain_limit"],
+                   "stretch": {"inextensible_compression": None, "joint_long_range": False}}
+#: the defaults of stops 24-28 (the former opt-in 'in_contact'): long-range rows 5 levels, 3
+#: sweeps, the 5 % inextensible strain limit with 10 joint passes, edges near contacts
+#: compliant in compression at 10 N/m (bitwise those defaults)
+OLD_DEFAULTS = BEFORE_GLOBAL
+#: the defaults now (stop 29): OLD_DEFAULTS with the 1 % limit, the global strain step once a
+#: frame (setting B's), 40 joint passes in the substeps whose contacts pinch the cloth between
+#: two collider surfaces (strain_limit.inextensible_pinch_iterations) and the long-range rows
+#: in every joint pass (stretch.joint_long_range)
 DEFAULTS = {}
-#: setting B of strain_limit.py's global_chord (opt-in): the 1 % limit with 3 joint passes and
-#: the global strain step once a frame
+#: setting B of strain_limit.py's global_chord (opt-in before stop 29): the 1 % limit with 3
+#: joint passes and the global strain step once a frame, without the pinch passes and the
+#: long-range rows in the joint passes
 B = {"strain_limit": {"inextensible_max_strain": 0.01, "inextensible_joint_iterations": 3,
                       "global_passes": 20, "global_near": 0.005, "global_contacts": "rows",
                       "global_tolerance": 0.005, "global_pivots": 2, "global_every": "frame",
                       "global_smooth": 40, "global_alpha": 1e-4, "global_fast_lu": True,
-                      "global_chord": 3, "global_chord_rate": 0.8}}
+                      "global_chord": 3, "global_chord_rate": 0.8,
+                      "inextensible_pinch_iterations": None},
+     "stretch": {"joint_long_range": False}}
+#: the defaults explicit (stop 29): B with 10 joint passes, 40 where pinched, and the long-range
+#: rows in the joint passes
+P = {"strain_limit": {**B["strain_limit"], "inextensible_joint_iterations": 10,
+                      "inextensible_pinch_iterations": 40},
+     "stretch": {"joint_long_range": True}}
 REDETECT = {"collisions": {"redetect": True}}
 TIGHT = {"stretch": {"joint_long_range": True},
          "strain_limit": {"inextensible_max_strain": 0.02, "inextensible_joint_iterations": 40,
-                          "global_passes": 0}}
+                          "global_passes": 0, "inextensible_pinch_iterations": None}}
 SETTINGS = [("before", BEFORE), ("long_range", LONG_RANGE),
-            ("in_contact_hard", IN_CONTACT_HARD), ("defaults", DEFAULTS),
-            ("defaults+redetect", REDETECT), ("tight", TIGHT), ("B", B)]
+            ("in_contact_hard", IN_CONTACT_HARD), ("old_defaults", OLD_DEFAULTS),
+            ("defaults", DEFAULTS), ("defaults+redetect", REDETECT), ("tight", TIGHT),
+            ("B", B), ("P", P)]
 SCENES = ("cloth_on_sphere", "skirt_walk", "sleeve_elbow", "cloth_pinned", "flag_wind")
 
 
