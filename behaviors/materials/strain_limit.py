@@ -131,20 +131,46 @@ class StrainLimitParams(ConstraintParams):
         "each costs a full contact and strain-limit sweep. Measured against 40 "
         "(graphs/bench/cloth_strain.py, 24 frames): cloth_on_sphere 7.5 % instead of 6.6 % "
         "at -18 % CPU per frame, sleeve_elbow 20.7 % instead of 10.1 % at -16 %. 3 in setting B "
-        "of global_chord (with the global step, which holds what the joint passes leave).")
+        "of global_chord (with the global step, which holds what the joint passes leave). 10 "
+        "with the defaults of stop 29 (inextensible_max_strain): with 3 the sleeve around "
+        "sleeve_elbow's crease moved at 0.826 m/s at 14 solver iterations as the elbow "
+        "straightens (tests/test_elbow.py's bound 0.73 m/s), with 10 0.707 m/s (both with "
+        "stretch.joint_long_range true; 0.671 m/s with 10 and 'pinch', the defaults).")
     inextensible_pinch_iterations: int | None = Field(
-        None, ge=1, le=10000, description="Most joint passes (instead of "
+        40, ge=1, le=10000, description="Most joint passes (instead of "
         "inextensible_joint_iterations) in a substep whose contacts pinch inextensible cloth "
         "between two collider surfaces facing each other (a vertex with collider contacts "
         "whose outward normals are more than 120 degrees apart, count_pinched: a sleeve in a "
         "bending elbow's crease); null = inextensible_joint_iterations in every substep (the "
         "step before, bitwise). Without a pinch the joint passes pay for little (the global "
-        "step holds the rest) and every one costs a full contact sweep.")
+        "step holds the rest) and every one costs a full contact sweep. A default since stop "
+        "29 (inextensible_max_strain): sleeve_elbow's crease needs 40 (setting B's 3: 18.6 % "
+        "in the closing crease, graphs/bench/sleeve_elbow_girth.py), and 40 in every substep "
+        "cost 1.99x the defaults' CPU on cloth_on_sphere (B + 40, stop 28), where nothing is "
+        "pinched. The compliant skin of an arm counts as a collider (a row with a vertex "
+        "outside the cloth's edges): its vertices are dynamic.")
     tolerance: float = Field(1e-3, ge=0, description="Accepted relative excess over the limit.")
     inextensible_max_strain: float | None = Field(
-        0.05, ge=0, le=10.0, description="Strain limit eps_e [-] given to every inextensible "
+        0.01, ge=0, le=10.0, description="Strain limit eps_e [-] given to every inextensible "
         "DiscreteShell (youngs_modulus null) that sets no max_strain, solved with the contacts "
-        "like a painted one; null = none (the default before issue #13). Default 0.05 with 10 "
+        "like a painted one; null = none (the default before issue #13). Default 0.01 since "
+        "stop 29, with the global strain step once a frame (setting B of global_chord: "
+        "global_passes 20, global_near 0.005, global_contacts 'rows', global_pivots 2, "
+        "global_tolerance 0.005, global_every 'frame', global_smooth 40, global_alpha 1e-4, "
+        "global_fast_lu, global_chord 3 at global_chord_rate 0.8), 10 joint passes, 40 in "
+        "substeps whose contacts pinch the cloth (inextensible_pinch_iterations) and in those "
+        "the long-range rows in the joint passes (stretch.joint_long_range 'pinch'): worst "
+        "edge strain in "
+        "every frame under issue #13's 2 % (graphs/bench/cloth_strain.py 'old_defaults' -> "
+        "'defaults', NUMBA_NUM_THREADS=1, worst frame; CPU per frame over the second half, "
+        "interleaved ABBA, 24 frames): cloth_on_sphere 6.63 -> 1.50 % at 341 -> 506 ms "
+        "(1.49x), skirt_walk 5.00 -> 1.10 % at 44 -> 45 ms, sleeve_elbow 13.16 -> 1.50 % at "
+        "219 -> 312 ms (1.42x; all 60 frames: 13.16 -> 1.50 %, median CPU 197 -> 260 ms, "
+        "1.32x). The slow elbow tests hold (tests/test_elbow.py, sleeve speed within 0.15 m "
+        "of the joint, bound 0.73 m/s, 1 thread: 0.638 m/s, 0.671 at 14 solver "
+        "iterations, where inextensible_joint_iterations 3 gave 0.826; 0 sleeve-arm pairs). "
+        "Default 0.05 (stops 24-28; "
+        "graphs/bench/cloth_strain.py 'old_defaults') with 10 "
         "joint passes and stretch long_range_levels 5, sweeps 3, inextensible_compression 10 "
         "(worst-frame edge strain over 24 frames, graphs/bench/cloth_strain.py 'before' -> "
         "'defaults'): cloth_on_sphere 183.6 -> 6.6 %, sleeve_elbow 94.8 -> 23.9 %, skirt_walk "
@@ -174,14 +200,16 @@ class StrainLimitParams(ConstraintParams):
         "passes with the contacts 5.8 % (5.7 % without friction); the CCD step changes nothing "
         "(graphs/bench/cloth_strain.py --stages).")
     global_passes: int = Field(
-        0, ge=0, le=100, description="Most Newton passes of the global strain-limit step "
+        20, ge=0, le=100, description="Most Newton passes of the global strain-limit step "
         "(Goldenthal et al. 2007 fast projection, strain_limit_global.py) after the final "
         "collision rounds and before the CCD safe step (constitutive mode, DiscreteShell edges "
         "only; hair is never touched): the edges over their limit solved as one sparse system "
         "(J W J^T + alpha diag) dlam = C, x -= W J^T dlam, with the vertices in contact with "
         "a collider moving only in the contact's tangent plane (global_contacts), until every "
         "edge holds within the tolerance. 0 = off (the Gauss-Seidel limit alone, bitwise). "
-        "20 in setting B of global_chord (opt-in, its figures there); the measurements below are "
+        "20 in setting B of global_chord, a Nucleus default since stop 29 (0 before; "
+        "inextensible_max_strain has the figures; other solvers get the step only when "
+        "global_passes is set explicitly); the measurements below are "
         "of the plain step (global_contacts 'filter', no pivots, no sweeps) in every substep. "
         "Measured at 20 (graphs/bench/cloth_strain.py, 12 frames, worst frame; CPU per frame "
         "over the second half, in contact, 1 thread, one interleaved run): cloth_on_sphere at "
@@ -192,13 +220,15 @@ class StrainLimitParams(ConstraintParams):
         "same figures. No intersecting pairs on the drops, no cloth vertex inside the sphere "
         "(sleeve_elbow: 227 intersecting pairs in its worst frame against 244 without).")
     global_near: float = Field(
-        0.0, ge=0, le=1.0, description="Edges within this fraction under their limit join the "
+        0.005, ge=0, le=1.0, description="Edges within this fraction under their limit join the "
         "global step's active set too (held at their length) [-]. 1e-3 against 0 on "
         "cloth_on_sphere at 0.01: 3.1 against 2.3 % (more redundant rows, the plain step). With "
         "global_pivots (the pivots' candidate rows) 0.005 against 0.02: 5-7 % less CPU per "
-        "frame on cloth_on_sphere at the same worst strain (setting B, global_chord).")
+        "frame on cloth_on_sphere at the same worst strain (setting B, global_chord). "
+        "Setting B's value, a default since stop 29 (0 before; "
+        "inextensible_max_strain).")
     global_contacts: Literal["filter", "rows", "none"] = Field(
-        "filter", description="Contacts in the global step. 'filter': a vertex of a contact "
+        "rows", description="Contacts in the global step. 'filter': a vertex of a contact "
         "with a collider (a row with a kinematic vertex) within twice its target distance "
         "moves only in the tangent plane of its most closed contact (W -> w (I - n n^T)); "
         "the system is factorised once and reused while it converges (chord Newton). 'rows': "
@@ -215,9 +245,11 @@ class StrainLimitParams(ConstraintParams):
         "vertices' contact planes (as 'rows' has them): without them the sweeps pushed the "
         "32 x 32 drape into the ball (1.3 against 4.1 mm from its inradius) and the safe "
         "step's push-out stretched it to 2.93 % (tests/test_strain_limit_global.py: 1.10 % "
-        "with them at global_tolerance 1e-3, 1.50 % at 0.005).")
+        "with them at global_tolerance 1e-3, 1.50 % at 0.005). "
+        "Setting B's value, a default since stop 29 ('filter' before; "
+        "inextensible_max_strain).")
     global_pivots: int = Field(
-        0, ge=0, le=100, description="> 0: each factorised pass of the global step solves the "
+        2, ge=0, le=100, description="> 0: each factorised pass of the global step solves the "
         "edge limits (and with global_contacts 'rows' the contacts) as the inequalities they "
         "are, a linear complementarity problem (multipliers >= 0, no row left over its limit, "
         "complementary) over the candidate rows (edges over (1 - global_near) limit; with "
@@ -246,7 +278,9 @@ class StrainLimitParams(ConstraintParams):
         "converge in the first contact frames. sleeve_elbow (24 frames) at 0.01: 23.91 -> "
         "15.41 % at 354 -> 648 ms (the arm forces ring 9 over 2 %, tests/test_cloth_strain.py). "
         "Fewer pivots, one run, cloth_on_sphere at 0.015: 10 -> 3 the same 1.60 % at 2425 -> "
-        "1999 ms. Not a default: the CPU (2 in setting B of global_chord, opt-in).")
+        "1999 ms. Not a default then: the CPU (2 in setting B of global_chord). "
+        "Setting B's value, a default since stop 29 (0 before; "
+        "inextensible_max_strain).")
     global_update: int = Field(
         16, ge=0, le=10000, description="With global_pivots: a pivot that swaps at most this "
         "many rows in or out of the last factorised active set solves with that set's factor "
@@ -263,7 +297,7 @@ class StrainLimitParams(ConstraintParams):
         "(658 ms); global_update 0 with COLAMD (the step before) 1.10 % (3417 ms, 5.2x); "
         "global_update 16 with the symmetric ordering 1.10 % (2457 ms, 3.7x), 0 penetrations.")
     global_tolerance: float | None = Field(
-        None, ge=0, le=10.0, description="Accepted relative excess over the limit in the "
+        0.005, ge=0, le=10.0, description="Accepted relative excess over the limit in the "
         "global step (its stopping test and the pivots' gap); null = tolerance (1e-3). 0.005 "
         "in setting B of global_chord (the 1 % limit held to 1.5 %, under issue #13's 2 %). The "
         "step converges linearly (about 0.8 of the excess left per pass on the 64 x 64 "
@@ -281,9 +315,11 @@ class StrainLimitParams(ConstraintParams):
         "from the last substep's active set (within the noise), the step at 0.01 over a "
         "Gauss-Seidel limit kept at 0.05 (1453 against 1445 ms), Nucleus iterations 8 "
         "instead of 15 with the step (14 frames: 2581 against 2165 ms, the step has more "
-        "to do).")
+        "to do). "
+        "Setting B's value, a default since stop 29 (null, the tolerance 1e-3 before; "
+        "inextensible_max_strain).")
     global_every: Literal["substep", "frame"] = Field(
-        "substep", description="When the global step runs: every substep, or only in the "
+        "frame", description="When the global step runs: every substep, or only in the "
         "last substep of each frame (the frames' positions hold the limit, the substeps "
         "between them only the Gauss-Seidel limit). One interleaved run (as for "
         "global_tolerance; inextensible_max_strain 0.01, global_passes 20, global_near 0.02, "
@@ -294,9 +330,11 @@ class StrainLimitParams(ConstraintParams):
         "'frame' with 3 joint iterations) 11.71 % (last frame 5.81 %) at 13046 ms (2.7x the "
         "defaults' 4787 ms). No penetrations. Cheaper still did not hold (another run, "
         "'frame' with 3 joint iterations: 1.50 % at 1060 ms, defaults 467 ms): "
-        "global_passes 10 3.91 % (1081 ms), global_pivots 1 4.07 % (1108 ms).")
+        "global_passes 10 3.91 % (1081 ms), global_pivots 1 4.07 % (1108 ms). "
+        "Setting B's value, a default since stop 29 ('substep' before; "
+        "inextensible_max_strain).")
     global_smooth: int = Field(
-        0, ge=0, le=1000, description="Gauss-Seidel sweeps of the edge limits after each "
+        40, ge=0, le=1000, description="Gauss-Seidel sweeps of the edge limits after each "
         "pass of the global step (with global_contacts 'rows' and global_pivots each sweep "
         "followed by the pass's contact planes: a vertex behind its plane goes back onto it), "
         "before its guard measures the worst edge; 0 = off (the step before, bitwise). Why "
@@ -330,9 +368,11 @@ class StrainLimitParams(ConstraintParams):
         "the step costs 472 ms on cloth_on_sphere (11.40 %, another run), so the sweeps halve "
         "the step's own cost (613 -> 298 ms in that run). Not a default: 1.5x the defaults' "
         "CPU, the target was 1.3x (with global_fast_lu and global_chord: setting B). With "
-        "'filter' the sweeps are followed by the filter's contact planes (global_contacts).")
+        "'filter' the sweeps are followed by the filter's contact planes (global_contacts). "
+        "Setting B's value, a default since stop 29 (0 before; "
+        "inextensible_max_strain).")
     global_chord: int = Field(
-        0, ge=0, le=100, description="With global_contacts 'rows' and global_pivots: up to "
+        3, ge=0, le=100, description="With global_contacts 'rows' and global_pivots: up to "
         "this many passes after a factorised one re-solve its active set (edges and contact "
         "rows) with its factor, J and the right-hand side at the current positions (chord "
         "Newton; rows gone under their limit held, not pulled back; a contact row's C from "
@@ -362,26 +402,34 @@ class StrainLimitParams(ConstraintParams):
         "12 frames). One interleaved ABBA run (cloth_strain.py --only defaults B --abba, "
         "NUMBA_NUM_THREADS=1, CPU per frame over the second half): cloth_on_sphere 6.63 -> "
         "1.50 % at 1.34x, skirt_walk 5.00 -> 1.41 % at 1.01x, sleeve_elbow 23.91 -> 33.47 % at "
-        "1.09x, cloth_sphere_64 (12 frames) 6.63 -> 1.50 % at 1.25x.")
+        "1.09x, cloth_sphere_64 (12 frames) 6.63 -> 1.50 % at 1.25x. "
+        "Setting B's value, a default since stop 29 (0 before; "
+        "inextensible_max_strain).")
     global_chord_rate: float = Field(
-        0.5, ge=0, le=1.0, description="A chord pass (global_chord) is taken only when the "
+        0.8, ge=0, le=1.0, description="A chord pass (global_chord) is taken only when the "
         "pass before it left at most this fraction of the worst excess [-]; otherwise the "
-        "pass is factorised. 0.8 in setting B (global_chord; 0.5 seldom takes one).")
+        "pass is factorised. 0.8 in setting B (global_chord; 0.5 seldom takes one). "
+        "Setting B's value, a default since stop 29 (0.5 before; "
+        "inextensible_max_strain).")
     global_fast_lu: bool = Field(
-        False, description="With global_contacts 'rows' and global_pivots: the step's "
+        True, description="With global_contacts 'rows' and global_pivots: the step's "
         "SuperLU factorisations with small supernodes (relax 1, panel_size 1; on "
         "cloth_on_sphere's frame-9 systems 8.2 -> 5.7 ms a factorisation at the same fill, "
         "strain_limit_global.py, GlobalStrainStep._splu; the step over frames 8-14 330 -> "
         "224 ms a frame with A + S, graphs/bench/cloth_strain.py --passes, one interleaved "
-        "run); false = the factorisations before, bitwise.")
+        "run); false = the factorisations before, bitwise. "
+        "Setting B's value, a default since stop 29 (false before; "
+        "inextensible_max_strain).")
     global_alpha: float = Field(
-        1e-3, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
+        1e-4, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
         "step's system, relative to its diagonal [-]. An inextensible triangle mesh has about "
         "three edges per vertex against two in-plane degrees of freedom: J W J^T is nearly "
         "singular where a region is saturated, and with 1e-8 the Newton steps diverged "
         "(a 40 x 40 drape at 0.01: worst 30-50 % after a step); at 1e-3 the drape ends at "
         "1.07 % (1e-4 1.09 %, 1e-2 1.23 %, 1e-1 1.88 %, frame 9). 1e-4 needs global_smooth "
-        "(without the sweeps a smaller alpha diverges).")
+        "(without the sweeps a smaller alpha diverges). "
+        "Setting B's value, a default since stop 29 (1e-3 before; "
+        "inextensible_max_strain).")
 
 
 @dataclass
@@ -463,6 +511,7 @@ class StrainLimitConstraint(ConstraintBehavior):
         the substep's contacts pinch the cloth (``count_pinched``), else
         inextensible_joint_iterations."""
         self._joint_n = None
+        self.pinched = False  # read by stretch.joint_long_range 'pinch'
         if d is None or d.pinch is None:
             return
         c = ctx.state.fields.get("contacts")
@@ -479,6 +528,7 @@ class StrainLimitConstraint(ConstraintBehavior):
         ctx.stats["max_pinched"] = max(ctx.stats.get("max_pinched", 0), k)
         if k:
             self._joint_n = self._pinch_n
+            self.pinched = True
 
     def project(self, ctx, d, p):
         if self.params.mode == "constitutive":

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numba import njit, prange
@@ -368,20 +369,26 @@ class StretchParams(ConstraintParams):
         "1.15/1.01/0.85/0.78 m/s; compression off 0.80/0.79/0.80/0.83 (a fold of the collapsed "
         "sleeve falls freely once the crease opens). Compliant on every edge instead of only "
         "near contacts, the 10 N/m flag in wind reaches 18.3 % strain (5.0 % hard).")
-    joint_long_range: bool = Field(False, description="Project the long-range rows also in "
-                                   "every joint pass of the final collision rounds and of the "
-                                   "CCD rounds (before the strain limits and the contacts), "
-                                   "where they carry the strain limit's corrections across "
-                                   "the sheet. Off by default: it pays with more joint passes "
-                                   "only. Measured (graphs/bench/cloth_strain.py, worst frame "
-                                   "of 24, CPU ms/frame beside 5 levels, 3 sweeps and the 5 % "
-                                   "inextensible limit with 10 passes, in one run): with "
-                                   "strain_limit.inextensible_joint_iterations 40 "
-                                   "and inextensible_max_strain 0.02 cloth_on_sphere 7.5 -> 3.8 % "
-                                   "(492 -> 759 ms), sleeve_elbow 20.7 -> 3.2 % (242 -> 318), "
-                                   "skirt_walk 5.0 -> 2.0 % (54 -> 56); at 10 joint passes it "
-                                   "helps the sleeve (20.7 -> 12.6 %) and not the drop (7.5 -> "
-                                   "9.8 %).")
+    joint_long_range: bool | Literal["pinch"] = Field(
+        "pinch", description="Project the long-range rows also in every joint pass of the "
+        "final collision rounds and of the CCD rounds (before the strain limits and the "
+        "contacts), where they carry the strain limit's corrections across the sheet: true in "
+        "every substep, 'pinch' only in the substeps whose joint passes are "
+        "strain_limit.inextensible_pinch_iterations (their contacts pinch the cloth between two "
+        "collider surfaces), false never (the default before stop 29). 'pinch' is a Nucleus "
+        "default since stop 29 (other solvers get it only when set explicitly), with "
+        "strain_limit's defaults of that stop (inextensible_max_strain): sleeve_elbow's crease "
+        "with 40 joint passes 3.85 % without the rows, 1.18 % with them (frames 22-28, "
+        "graphs/bench/sleeve_elbow_girth.py). Not true: in every substep the rows stiffened the "
+        "24 x 24 cloth pinned at its corners that stops a 20 m/s shape-matched ball at one "
+        "substep (tests/test_collisions.py) so much that the ball's centroid passed the cloth's "
+        "centre vertex (18 mm at frame 3; 'pinch' and false never). Measured with true "
+        "(graphs/bench/cloth_strain.py, worst frame of 24, CPU ms/frame beside 5 levels, 3 "
+        "sweeps and the 5 % inextensible limit with 10 passes, in one run): with "
+        "strain_limit.inextensible_joint_iterations 40 and inextensible_max_strain 0.02 "
+        "cloth_on_sphere 7.5 -> 3.8 % (492 -> 759 ms), sleeve_elbow 20.7 -> 3.2 % (242 -> 318), "
+        "skirt_walk 5.0 -> 2.0 % (54 -> 56); at 10 joint passes it helps the sleeve (20.7 -> "
+        "12.6 %) and not the drop (7.5 -> 9.8 %).")
 
 
 @dataclass
@@ -410,6 +417,11 @@ class StretchConstraint(ConstraintBehavior):
     default_order = 30
 
     def bind(self, ctx, elements):
+        # joint_long_range: a Nucleus default (since stop 29); other solvers get it only when
+        # set explicitly
+        self._joint_lr = self.params.joint_long_range if (
+            getattr(ctx.scene.spec, "solver", "nucleus") == "nucleus"
+            or "joint_long_range" in self.params.model_fields_set) else False
         parts = []
         lr_parts = []
         shell = False  # any inextensible cloth: the extra sweeps apply
@@ -521,7 +533,10 @@ class StretchConstraint(ConstraintBehavior):
         and the contacts of every joint pass (``joint_long_range``): the long-range rows only
         (unilateral, consistent with any strain limit >= 0); the edges stay out (hard and
         bilateral, they would fight the contacts)."""
-        if d is not None and d.long_range is not None and self.params.joint_long_range:
+        lr = getattr(self, "_joint_lr", False)
+        if lr == "pinch":  # only while a strain limit runs its pinch passes
+            lr = any(getattr(b, "pinched", False) for b, _ in ctx.constraints)
+        if d is not None and d.long_range is not None and lr:
             self._project_long_range(ctx, d.long_range, p)
 
     def joint_iterations(self) -> int:

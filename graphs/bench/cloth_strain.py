@@ -9,15 +9,20 @@ turn in one process (machine load hits all alike):
   hard in compression);
 * ``in_contact_hard``: that plus ``strain_limit: {inextensible_max_strain: 0.05,
   inextensible_joint_iterations: 10}`` (edges hard in compression);
-* ``defaults``: that plus ``stretch: {inextensible_compression: 10}`` (edges near contacts
-  compliant in compression; the opt-in 'in_contact' before it became the defaults);
+* ``old_defaults``: that plus ``stretch: {inextensible_compression: 10}`` (edges near
+  contacts compliant in compression; the defaults of stops 24-28, explicit: bitwise those);
+* ``defaults``: the defaults since stop 29, setting B below with 10 joint passes, 40 in the
+  substeps whose contacts pinch the cloth between two collider surfaces
+  (``strain_limit.inextensible_pinch_iterations``) and there the long-range rows in the joint
+  passes too (``stretch.joint_long_range: pinch``);
 * ``defaults+redetect``: that plus ``collisions: {redetect: true}``;
-* ``tight``: the defaults with ``stretch: {joint_long_range: true}``, ``strain_limit:
+* ``tight``: old_defaults with ``stretch: {joint_long_range: true}``, ``strain_limit:
   {inextensible_max_strain: 0.02, inextensible_joint_iterations: 40}``.
 
-* ``B``: setting B of strain_limit.py's global_chord (opt-in): the 1 % limit with 3 joint
-  passes and the global strain step once a frame ('rows', 2 pivots, 40 sweeps, fast LU, chord
-  passes).
+* ``B``: setting B of strain_limit.py's global_chord (opt-in before stop 29): the 1 % limit with
+  3 joint passes and the global strain step once a frame ('rows', 2 pivots, 40 sweeps, fast LU,
+  chord passes), no pinch passes, no long-range rows in the joint passes;
+* ``P``: the defaults explicit.
 
 ``--abba`` runs every setting twice, the repeats in reverse order. Measured (stop 28, one run
 per line, NUMBA_NUM_THREADS=1, load 5-6 on 2 cores; ``--frames 24 --scenes cloth_on_sphere
@@ -120,8 +125,8 @@ IN_CONTACT_HARD = {"strain_limit": BEFORE_GLOBAL["strain_limit"],
 OLD_DEFAULTS = BEFORE_GLOBAL
 #: the defaults now (stop 29): OLD_DEFAULTS with the 1 % limit, the global strain step once a
 #: frame (setting B's), 40 joint passes in the substeps whose contacts pinch the cloth between
-#: two collider surfaces (strain_limit.inextensible_pinch_iterations) and the long-range rows
-#: in every joint pass (stretch.joint_long_range)
+#: two collider surfaces (strain_limit.inextensible_pinch_iterations) and in those the
+#: long-range rows in the joint passes (stretch.joint_long_range 'pinch')
 DEFAULTS = {}
 #: setting B of strain_limit.py's global_chord (opt-in before stop 29): the 1 % limit with 3
 #: joint passes and the global strain step once a frame, without the pinch passes and the
@@ -133,11 +138,11 @@ B = {"strain_limit": {"inextensible_max_strain": 0.01, "inextensible_joint_itera
                       "global_chord": 3, "global_chord_rate": 0.8,
                       "inextensible_pinch_iterations": None},
      "stretch": {"joint_long_range": False}}
-#: the defaults explicit (stop 29): B with 10 joint passes, 40 where pinched, and the long-range
-#: rows in the joint passes
+#: the defaults explicit (stop 29): B with 10 joint passes, 40 where pinched, and there the
+#: long-range rows in the joint passes
 P = {"strain_limit": {**B["strain_limit"], "inextensible_joint_iterations": 10,
                       "inextensible_pinch_iterations": 40},
-     "stretch": {"joint_long_range": True}}
+     "stretch": {"joint_long_range": "pinch"}}
 REDETECT = {"collisions": {"redetect": True}}
 TIGHT = {"stretch": {"joint_long_range": True},
          "strain_limit": {"inextensible_max_strain": 0.02, "inextensible_joint_iterations": 40,

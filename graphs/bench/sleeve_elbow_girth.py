@@ -92,6 +92,14 @@ recedes further) take out. The whole run (``--frames 1-60``, another run): B + J
 joint_long_range 1.50 % worst over 60 frames (frames 29-48 1.43 %, 49-60 1.04 %) at 278-393
 CPU ms per frame, B + J40 + skin x 0.25 1.40 % (1.20 %, 1.01 %) at 277-363 ms, the defaults
 13.16 % (7.95 %, 4.07 %) at 202-285 ms; 0 intersecting pairs in every frame of all three.
+
+Since stop 29 the defaults are B with 10 joint passes, 40 in the substeps whose contacts pinch
+the cloth between two collider surfaces (strain_limit.inextensible_pinch_iterations) and there
+the long-range rows in the joint passes (stretch.joint_long_range 'pinch'); ``--pinch ''`` runs
+those; the 'defaults' row above is stop 28's (``--pinch "strain_limit.inextensible_max_strain=
+0.05 strain_limit.global_passes=0 strain_limit.inextensible_pinch_iterations=null
+stretch.joint_long_range=false"``), and B there is without the pinch passes and rows
+(``strain_limit.inextensible_pinch_iterations=null stretch.joint_long_range=false`` on top).
 """
 
 from __future__ import annotations
