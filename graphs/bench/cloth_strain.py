@@ -26,7 +26,8 @@ turn in one process (machine load hits all alike):
 
 ``--abba`` runs every setting twice, the repeats in reverse order. Measured (stop 29,
 NUMBA_NUM_THREADS=1, ``--frames 24 --scenes cloth_on_sphere skirt_walk sleeve_elbow --only
-old_defaults defaults --abba``), worst strain and CPU ms per frame over the second half, old_defaults / defaults:
+old_defaults defaults --abba``), worst strain and CPU ms per frame over the second half,
+old_defaults / defaults:
 cloth_on_sphere 6.63 / 1.50 %, 341 / 506 ms (1.49x); skirt_walk 5.00 / 1.10 %, 44 / 45 ms;
 sleeve_elbow 13.16 / 1.50 %, 219 / 312 ms (1.42x; 60 frames 13.16 / 1.50 %, medians 197 / 260
 ms); ``--peer 64 128 --frames 12``: 64 x 64 6.6 / 1.5 % at 231 / 379 ms (medians), 128 x 128
