@@ -216,6 +216,37 @@ _REFIT_MIN_PARALLEL = 8192  # trees with fewer internal nodes are refit serially
 _REFIT_SUBTREES = 64  # refit splits the tree into at least this many subtrees (one task each)
 _ST_TOL = 1e-9  # [m] slack of the space-time box test over rounding
 _NO_ST = np.zeros((0, 14))
+#: the size a grow-only buffer (pair buffers, their scratch, the column grid's work arrays, and
+#: the contacts' row and pack buffers) takes when ``need`` entries overflow its ``capacity``:
+#: ``GROW_HEADROOM`` times what is needed (its untouched tail costs address space only, no
+#: pages), so a count that climbs over a few detections (the rows of a landing cloth grow 5-10x
+#: within two frames) reallocates, and writes into fresh pages, a few times rather than at
+#: every detection. 0: ``max(need, 1.5 capacity)`` as before (at most exactly what is needed
+#: when the count jumps by more than half). The buffers' contents and the results are the same
+#: either way (positions after 12 frames of cloth_sphere_128 and cloth_sphere_moving_128
+#: bitwise equal). Where the time went: the kernel's share of the CPU (page faults, zeroing
+#: and compacting fresh huge pages: numpy advises them for large arrays) was 0.6 s (static)
+#: and 1.1 s (moving) a frame over frames 8-12 of those scenes, in the first detection's
+#: filters, pack, cull, sort and queries, and none once the rows stop growing (frames 11-12).
+#: ``peer_collision.py --moving --stages`` reports that share per part as ``y_STAGE.PART``.
+#: Measured 0 -> 2 in two interleaved runs, 1 thread, mean of frames 8-12: CPU 4,270 -> 4,158
+#: ms a frame (static) and 8,124 -> 7,734 (moving), the kernel's share 638 -> 478 and 1,107 ->
+#: 1,013 ms (load ~3); CPU 4,427 -> 4,410 and 8,443 -> 8,449, the first detection's kernel
+#: share 580 -> 523 and 1,068 -> 904 ms (load 6: ``NUMBA_NUM_THREADS=1 peer_collision.py
+#: --moving --loki 2x15 --stages --stage-frames 8 12 --frames 12 --all-flag
+#: broadphase.GROW_HEADROOM=0``): a small gain, within the noise of the frame's CPU.
+#: The rest is the resident memory itself growing (1.3 -> 4.2 GB over frames 8-10 of the
+#: moving scene: ~220 bytes a row in two alternating pack sets, the pair buffers, the sort
+#: keys and the cull's), which no reuse avoids
+GROW_HEADROOM = 2.0
+
+
+def grown_size(need: int, capacity: int) -> int:
+    """Entries to allocate for ``need`` entries in a buffer of ``capacity`` (need > capacity):
+    see ``GROW_HEADROOM``."""
+    if GROW_HEADROOM:
+        return max(int(need), int(GROW_HEADROOM * need))
+    return max(int(need), int(1.5 * capacity))
 
 
 # --------------------------------------------------------------------------------------------
@@ -278,7 +309,7 @@ class PairBuffer:
 
     A query given ``out=buffer`` returns a view ``buffer.data[:pair_count]``; the next query on the
     same buffer overwrites it. When a query needs more rows the buffer grows to
-    ``max(needed, 1.5 * capacity)`` (the only allocation).
+    ``grown_size(needed, capacity)`` (the only allocation; see ``GROW_HEADROOM``).
     """
 
     def __init__(self, capacity: int = 0):
@@ -293,21 +324,20 @@ class PairBuffer:
         """Two int64 scratch arrays of ``count`` entries for :func:`zsort_pairs`."""
         k = getattr(self, "_keys", None)
         if k is None or count > k.shape[1]:
-            n = max(int(count), int(1.5 * (0 if k is None else k.shape[1])))
+            n = grown_size(count, 0 if k is None else k.shape[1])
             k = self._keys = np.empty((2, n), dtype=np.int64)
         return k[0, :count], k[1, :count]
 
     def _sort_counts(self, count: int) -> np.ndarray:
         """An int64 scratch of ``count`` entries for :func:`sort_pairs`."""
         if count > self._counts.shape[0]:
-            self._counts = np.empty(max(int(count), int(1.5 * self._counts.shape[0])),
-                                    dtype=np.int64)
+            self._counts = np.empty(grown_size(count, self._counts.shape[0]), dtype=np.int64)
         return self._counts[:count]
 
     def scratch_rows(self, count: int) -> np.ndarray:
         """A ``(count, 2)`` scratch view for single-pass queries (grown like ``data``)."""
         if count > self._scratch.shape[0]:
-            self._scratch = np.empty((max(int(count), int(1.5 * self._scratch.shape[0])), 2),
+            self._scratch = np.empty((grown_size(count, self._scratch.shape[0]), 2),
                                      dtype=np.int64)
         return self._scratch[:count]
 
@@ -318,7 +348,7 @@ class PairBuffer:
     def reserve(self, count: int) -> np.ndarray:
         """Return a ``(count, 2)`` view, growing the storage first if needed."""
         if count > self.data.shape[0]:
-            self.data = np.empty((max(int(count), int(1.5 * self.data.shape[0])), 2), dtype=np.int64)
+            self.data = np.empty((grown_size(count, self.data.shape[0]), 2), dtype=np.int64)
         return self.data[:count]
 
 
@@ -2381,7 +2411,7 @@ def _col_work(out, key, shape, dtype=np.float64):
     for d in shape:
         size *= int(d)
     if a is None or a.shape[0] < size:
-        a = ws[key] = np.empty(max(size, int(1.5 * a.shape[0]) if a is not None else 0),
+        a = ws[key] = np.empty(grown_size(size, a.shape[0] if a is not None else 0),
                                dtype=dtype)
     return a[:size].reshape(shape)
 

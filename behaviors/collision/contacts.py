@@ -561,7 +561,7 @@ def _row_buffers(g, kind, n):
                 np.zeros(n, np.bool_))
     b = g.bufs.get(kind)
     if b is None or len(b[2]) < n:
-        m = max(n, int(1.5 * len(b[2])) if b is not None else n)
+        m = bp.grown_size(n, len(b[2]) if b is not None else 0)
         b = g.bufs[kind] = (np.empty((m, 4), np.int64), np.empty((m, 3)), np.empty(m),
                             np.empty(m), np.empty(m, np.bool_))
     return tuple(a[:n] for a in b)
@@ -799,7 +799,7 @@ def _cull(d, x1):
         rows = getattr(d, kind)
         sel, lb = getattr(d, kind + "_sel"), getattr(d, kind + "_lb")
         if len(rows) > len(sel):
-            sel = np.zeros(max(2 * len(sel), len(rows)), np.int64)
+            sel = np.zeros(max(2 * len(sel), bp.grown_size(len(rows), len(sel))), np.int64)
             lb = np.zeros(len(sel))
             setattr(d, kind + "_sel", sel)
             setattr(d, kind + "_lb", lb)
@@ -914,7 +914,7 @@ def _pack_grown(bufs, key, n, layout, keep=0):
     (its first ``keep`` rows copied into the new set)."""
     b = bufs.get(key)
     if b is None or len(b[0]) < n:
-        m = max(n, int(1.5 * len(b[0])) if b is not None else n)
+        m = bp.grown_size(n, len(b[0]) if b is not None else 0)
         nb = tuple(np.empty((m,) + shape, dt) for shape, dt in layout)
         if b is not None and keep:
             for a, o in zip(nb, b):

@@ -203,6 +203,15 @@ def install_breakdown():
             setattr(C, attr, w)
 
 
+def _minflt() -> tuple[int, float]:
+    """Minor page faults of this process so far (first touches of fresh pages among them) and
+    its system CPU [s] (the kernel's share: page faults, zeroing and compacting fresh pages)."""
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_minflt, r.ru_stime
+
+
 _STAGE = ["other"]  # --stages: the collision stage being run (first / iter / final / ccd)
 
 
@@ -215,6 +224,8 @@ def install_stages(n_cloth: int):
     space-time boxes), ``broad`` (the column grid's / trees' queries), ``order`` (the Z-order
     sort), ``filter_vf`` / ``filter_ee`` (the narrow filters), ``pack``, ``cull``, ``pass``
     (``_project_contacts``; ``full`` counts the passes over every row), ``ccd_hits``.
+    ``f_STAGE.PART`` counts the part's minor page faults (thousands per frame in the table),
+    ``y_STAGE.PART`` its system CPU [s] (in the part's ``s_``).
     ``r_STAGE.{vf,ee}_{self,ball}`` sum the rows of the stage's detections (cloth-cloth / with a
     vertex of index >= ``n_cloth``: the collider); their counting is left out of the parts
     but is in the frame's CPU (``s_count`` says how much)."""
@@ -230,6 +241,7 @@ def install_stages(n_cloth: int):
         fn = getattr(mod, attr)
 
         def w(*a, **k):
+            f0 = _minflt()
             c0 = time.process_time()
             try:
                 return fn(*a, **k)
@@ -237,6 +249,9 @@ def install_stages(n_cloth: int):
                 key = f"{_STAGE[0]}.{part}"
                 _PROF["s_" + key] = _PROF.get("s_" + key, 0.0) + time.process_time() - c0
                 _PROF["c_" + key] = _PROF.get("c_" + key, 0) + 1
+                f1 = _minflt()
+                _PROF["f_" + key] = _PROF.get("f_" + key, 0) + f1[0] - f0[0]
+                _PROF["y_" + key] = _PROF.get("y_" + key, 0.0) + f1[1] - f0[1]
                 if after is not None:
                     c1 = time.process_time()
                     after(*a)
@@ -249,11 +264,13 @@ def install_stages(n_cloth: int):
         def w(*a, **k):
             keep = _STAGE[0]
             _STAGE[0] = stage
+            f0 = _minflt()
             c0 = time.process_time()
             try:
                 return fn(*a, **k)
             finally:
                 _PROF["s_" + stage] = _PROF.get("s_" + stage, 0.0) + time.process_time() - c0
+                _PROF["y_" + stage] = _PROF.get("y_" + stage, 0.0) + _minflt()[1] - f0[1]
                 _STAGE[0] = keep
         setattr(cls, attr, w)
 
@@ -304,7 +321,7 @@ def stages_table(rows, n_cloth: int, frames=None) -> str:
     default 2..N) and the rows per cloth vertex of the stages' detections (summed over the
     frame's detections of that stage, divided by the detections)."""
     keys = sorted({k for r in rows for v in r["per_frame"] for k in v
-                   if k.startswith(("s_", "r_", "c_"))})
+                   if k.startswith(("s_", "r_", "c_", "f_", "y_"))})
     lines = ["| key | " + " | ".join(r["setting"] for r in rows) + " |",
              "|" + "---|" * (len(rows) + 1)]
     for k in ["cpu_ms"] + keys:
@@ -314,8 +331,10 @@ def stages_table(rows, n_cloth: int, frames=None) -> str:
                                                             if f <= len(r["per_frame"])]
             vals = [v.get(k, 0) for v in pf]
             m = float(np.mean(vals)) if vals else float("nan")
-            if k.startswith("s_"):
+            if k.startswith(("s_", "y_")):
                 cells.append(f"{1e3 * m:.0f}")
+            elif k.startswith("f_"):
+                cells.append(f"{m / 1e3:.1f}k")
             elif k.startswith("r_"):
                 det = [v.get("c_" + k[2:].split(".")[0] + ".detect", 0) for v in pf]
                 cells.append(f"{np.sum(vals) / max(np.sum(det), 1) / n_cloth:.1f}")
@@ -339,9 +358,18 @@ class LokiRun:
         from lokigraph.run import Simulation
         from lokigraph.scene import load_scene
 
+        from lokigraph.behaviors.collision import contacts as C
+
         sc = _apply(load_scene(scene.path), {"substeps": substeps, "iterations": iterations,
                                              **(overrides or {})})
-        self.sim = Simulation(compile_scene(sc))
+        keep_flags = {k: getattr(*_flag_at(C, k)) for k in (flags or {})}
+        for k, v in (flags or {}).items():  # also at bind time (e.g. MARGIN_EDGE)
+            setattr(*_flag_at(C, k), v)
+        try:
+            self.sim = Simulation(compile_scene(sc))
+        finally:
+            for k, v in keep_flags.items():
+                setattr(*_flag_at(C, k), v)
         self.sim._steps = [b for b in self.sim._steps
                            if type(b.behavior).__name__ != "PenetrationCheck"]
         self.scene = scene
@@ -354,14 +382,14 @@ class LokiRun:
     def step(self):
         from lokigraph.behaviors.collision import contacts as C
 
-        keep_flags = {k: getattr(C, k) for k in self.flags}
+        keep_flags = {k: getattr(*_flag_at(C, k)) for k in self.flags}
         for k, v in self.flags.items():
-            setattr(C, k, v)
+            setattr(*_flag_at(C, k), v)
         try:
             self._step()
         finally:
             for k, v in keep_flags.items():
-                setattr(C, k, v)
+                setattr(*_flag_at(C, k), v)
 
     def _step(self):
         _PROF.clear()
@@ -761,9 +789,19 @@ def per_frame_table(rows) -> str:
     return "\n".join(lines)
 
 
+def _flag_at(C, name: str):
+    """(module, attribute) of a flag name: ``NAME`` in the contacts module ``C``,
+    ``broadphase.NAME`` in the broad-phase module."""
+    if name.startswith("broadphase."):
+        from lokigraph.behaviors.collision import broadphase
+
+        return broadphase, name.split(".", 1)[1]
+    return C, name
+
+
 def _flags(spec: str) -> dict:
     """``--moving-flag`` spec ``NAME`` (True) or ``NAME=VALUE[,NAME=VALUE...]`` (Python
-    literals) -> contacts module globals."""
+    literals) -> contacts module globals (``broadphase.NAME``: the broad-phase module's)."""
     import ast
 
     out = {}
@@ -809,7 +847,9 @@ def main(argv=None):
     ap.add_argument("--all-flag", nargs="+", default=None, metavar="NAME",
                     help="with --moving: every scene (the static one too) again with the "
                          "contacts flags set as --moving-flag's, in the same interleaved run "
-                         "(A/B of a flag that must leave the positions unchanged)")
+                         "(A/B of a flag that must leave the positions unchanged); with "
+                         "--sizes: every lokigraph setting again with them, interleaved, "
+                         "fitted apart")
     ap.add_argument("--breakdown", action="store_true",
                     help="time the collision functions per frame (detect, project, ccd; "
                          "see install_breakdown) and print a per-frame table")
@@ -915,6 +955,10 @@ def main(argv=None):
             frames = args.frames or sc.frames
             runs = [LokiRun(sc, *st[:2], threads=st[2] if len(st) > 2 else None, overrides=ov)
                     for st, ov in zip(loki, extra)]
+            for name in args.all_flag or ():  # every setting again with the flags set
+                runs += [LokiRun(sc, *st[:2], label=f" {name}",
+                                 threads=st[2] if len(st) > 2 else None, overrides=ov,
+                                 flags=_flags(name)) for st, ov in zip(loki, extra)]
             if newton is not None:
                 for s, i in newt:
                     try:
