@@ -789,6 +789,80 @@ def per_frame_table(rows) -> str:
     return "\n".join(lines)
 
 
+def rows_why(frames=(8, 9, 10, 11)) -> str:
+    """``--rows-why``: why the moving scene's first detection has more cloth-cloth rows than the
+    static one's. At the last substep of ``frames`` (both scenes, 2 x 15), the cloth's
+    edge-edge candidates (before the filter) of its swept boxes over x -> x1 (as detected), of
+    boxes at x alone and at x1 alone (no sweep), and of space-time boxes (the relative motion);
+    the swept rows split by the larger sweep |x1 - x| of their two edges, by their relative
+    motion (largest |dx_a - dx_b| over the four vertex pairs) and by whether an edge is within
+    20 mm of the ball."""
+    from lokigraph.behaviors.collision import broadphase as bp
+    from lokigraph.behaviors.collision import contacts as C
+
+    res = {}
+    cur = {}
+
+    def probe(tag, d, x, x1, frame):
+        g = d.groups[0]
+        infl = C._infl(g)
+        E = g.edges[g.edge_elem == 0]  # the cloth's edges
+
+        def count(a, b, st=False):
+            lo, hi = bp.primitive_boxes(a, E, b, infl)
+            se = (bp.spacetime_prim_boxes(a, E, b, infl, np.ones(len(E), bool),
+                                          np.zeros(len(E), np.int64)) if st else None)
+            return bp.column_query_self(lo, hi, E, st=se)
+
+        sw = count(x, x1)
+        nv = int((g.vert_elem == 0).sum())
+        mv = np.linalg.norm(x1 - x, axis=1)
+        em = np.maximum(mv[E[:, 0]], mv[E[:, 1]])
+        pm = np.maximum(em[sw[:, 0]], em[sw[:, 1]]) * 1e3
+        bv = g.verts[g.vert_elem[g.verts] == 1]
+        cen = x[bv].mean(axis=0)
+        near = np.linalg.norm(x - cen, axis=1) < np.linalg.norm(x[bv] - cen, axis=1).max() + 0.02
+        en = near[E[:, 0]] | near[E[:, 1]]
+        dd = x1 - x
+        a, b = E[sw[:, 0]], E[sw[:, 1]]
+        rel = np.max([np.linalg.norm(dd[a[:, i]] - dd[b[:, j]], axis=1)
+                      for i in (0, 1) for j in (0, 1)], axis=0) * 1e3
+        res[(tag, frame)] = [
+            f"{len(sw) / nv:.0f}", f"{len(count(x, x)) / nv:.0f}", f"{len(count(x1, x1)) / nv:.0f}",
+            f"{len(count(x, x1, True)) / nv:.0f}",
+            f"{np.median(mv[:nv]) * 1e3:.1f} / {np.percentile(mv[:nv], 90) * 1e3:.1f}",
+            f"{100 * np.mean(pm > 20):.0f} %",
+            " / ".join(f"{100 * v:.0f}" for v in (np.mean(rel < 2), np.mean((rel >= 2) & (rel < 10)),
+                                                 np.mean(rel >= 10))) + " %",
+            f"{100 * np.mean(en[sw[:, 0]] | en[sw[:, 1]]):.0f} %"]
+
+    orig = C.CollisionDetect.step
+
+    def step(self, ctx, d):
+        r = orig(self, ctx, d)
+        if cur.get("frame") in frames and cur.get("sub") == 1:
+            probe(cur["tag"], d, ctx.state.particle_q, d.x1, cur["frame"])
+        cur["sub"] = cur.get("sub", 0) + 1
+        return r
+
+    C.CollisionDetect.step = step
+    try:
+        runs = [("static", LokiRun(ClothSphere(SCENES[128]), 2, 15)),
+                ("moving", LokiRun(ClothSphere(MOVING), 2, 15))]
+        for f in range(1, max(frames) + 1):
+            for tag, r in runs:
+                cur.update(tag=tag, frame=f, sub=0)
+                r.step()
+    finally:
+        C.CollisionDetect.step = orig
+    lines = ["| frame | scene | swept rows / cloth vertex | at x | at x1 | space-time | sweep mm "
+             "p50 / p90 | swept rows with a sweep > 20 mm | relative motion < 2 / 2-10 / > 10 mm "
+             "| with an edge near the ball |", "|" + "---|" * 10]
+    for (tag, f), v in sorted(res.items(), key=lambda kv: (kv[0][1], kv[0][0] != "static")):
+        lines.append(f"| {f} | {tag} | " + " | ".join(v) + " |")
+    return "\n".join(lines)
+
+
 def _flag_at(C, name: str):
     """(module, attribute) of a flag name: ``NAME`` in the contacts module ``C``,
     ``broadphase.NAME`` in the broad-phase module."""
@@ -867,6 +941,11 @@ def main(argv=None):
                     help="only: on the moving scene, do the rows of the substep's first "
                          "detection (absolute swept, collider frame, space-time) hold the pairs "
                          "of the iterate the iterations end at (see rows_at_iterate)")
+    ap.add_argument("--rows-why", action="store_true",
+                    help="only: cloth-cloth edge-edge candidates of the first detection per "
+                         "cloth vertex, static vs moving, swept / unswept / space-time boxes "
+                         "and the swept rows by sweep, relative motion and nearness to the "
+                         "ball (see rows_why; --frames N: frames 8..N, default 11)")
     ap.add_argument("--slack", type=float, default=0.005,
                     help="--rows-at-iterate: the extra inflation [m] of the slack rows")
     ap.add_argument("--out", default="bench_out/peer", help="output folder")
@@ -882,6 +961,9 @@ def main(argv=None):
     t_start = time.perf_counter()
     if args.rows_vs_speed:
         print(rows_vs_speed())
+        return []
+    if args.rows_why:
+        print(rows_why(tuple(range(8, (args.frames or 11) + 1))))
         return []
     if args.rows_at_iterate:
         print(rows_at_iterate(tuple(range(2, (args.frames or 14) + 1))
