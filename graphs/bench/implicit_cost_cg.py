@@ -264,12 +264,7 @@ def pcg_block_jacobi_upper(uptr, uidx, udata, inv, b, tol, after, loose, maxit, 
         return 0, 0.0
     rz = 0.0
     for i in range(n):
-        r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
-        z0 = inv[i, 0, 0] * r0 + inv[i, 0, 1] * r1 + inv[i, 0, 2] * r2
-        z1 = inv[i, 1, 0] * r0 + inv[i, 1, 1] * r1 + inv[i, 1, 2] * r2
-        z2 = inv[i, 2, 0] * r0 + inv[i, 2, 1] * r1 + inv[i, 2, 2] * r2
-        p[i, 0], p[i, 1], p[i, 2] = z0, z1, z2
-        rz += r0 * z0 + r1 * z1 + r2 * z2
+        rz += L._precond_row(inv, r, p, i)[1]
     it = 0
     rn = bn
     while it < maxit:
@@ -307,16 +302,9 @@ def pcg_block_jacobi_upper(uptr, uidx, udata, inv, b, tol, after, loose, maxit, 
         rr = 0.0
         rz_new = 0.0
         for i in range(n):
-            for a in range(3):
-                x[i, a] += al * p[i, a]
-                r[i, a] -= al * Ap[i, a]
-            r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
-            rr += r0 * r0 + r1 * r1 + r2 * r2
-            z0 = inv[i, 0, 0] * r0 + inv[i, 0, 1] * r1 + inv[i, 0, 2] * r2
-            z1 = inv[i, 1, 0] * r0 + inv[i, 1, 1] * r1 + inv[i, 1, 2] * r2
-            z2 = inv[i, 2, 0] * r0 + inv[i, 2, 1] * r1 + inv[i, 2, 2] * r2
-            z[i, 0], z[i, 1], z[i, 2] = z0, z1, z2
-            rz_new += r0 * z0 + r1 * z1 + r2 * z2
+            trr, trz = L._step_row(x, r, z, p, Ap, inv, al, i)
+            rr += trr
+            rz_new += trz
         it += 1
         rn = math.sqrt(rr)
         if rn <= tol * bn or (it >= after and rn <= loose * bn):

@@ -82,6 +82,46 @@ def _dot(a, b):
     return s
 
 
+@njit(cache=True, inline="always")
+def _row_product(indptr, indices, d9, p, i):
+    """Row i of the BSR product A p, the blocks read through the flat view ``d9`` of the data
+    (9 values a block, row-major)."""
+    y0 = 0.0
+    y1 = 0.0
+    y2 = 0.0
+    for q in range(indptr[i], indptr[i + 1]):
+        j = indices[q]
+        x0 = p[j, 0]
+        x1 = p[j, 1]
+        x2 = p[j, 2]
+        o = 9 * q
+        y0 += d9[o] * x0 + d9[o + 1] * x1 + d9[o + 2] * x2
+        y1 += d9[o + 3] * x0 + d9[o + 4] * x1 + d9[o + 5] * x2
+        y2 += d9[o + 6] * x0 + d9[o + 7] * x1 + d9[o + 8] * x2
+    return y0, y1, y2
+
+
+@njit(cache=True, inline="always")
+def _precond_row(inv, r, z, i):
+    """z[i] = inv[i] r[i]; returns vertex i's terms of r . r and r . z."""
+    r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
+    z0 = inv[i, 0, 0] * r0 + inv[i, 0, 1] * r1 + inv[i, 0, 2] * r2
+    z1 = inv[i, 1, 0] * r0 + inv[i, 1, 1] * r1 + inv[i, 1, 2] * r2
+    z2 = inv[i, 2, 0] * r0 + inv[i, 2, 1] * r1 + inv[i, 2, 2] * r2
+    z[i, 0], z[i, 1], z[i, 2] = z0, z1, z2
+    return r0 * r0 + r1 * r1 + r2 * r2, r0 * z0 + r1 * z1 + r2 * z2
+
+
+@njit(cache=True, inline="always")
+def _step_row(x, r, z, p, Ap, inv, al, i):
+    """Vertex i of a PCG step: x += al p, r -= al A p, z = P^-1 r; returns its terms of r . r
+    and r . z (``_precond_row``)."""
+    for a in range(3):
+        x[i, a] += al * p[i, a]
+        r[i, a] -= al * Ap[i, a]
+    return _precond_row(inv, r, z, i)
+
+
 @njit(cache=True)
 def pcg_block_jacobi(indptr, indices, data, inv, b, tol, maxit, x, r, z, p, Ap):
     """PCG with the block-Jacobi preconditioner ``inv`` (inverse diagonal blocks), all in one
@@ -123,29 +163,13 @@ def pcg_block_jacobi_after(indptr, indices, data, inv, b, tol, after, loose, max
         return 0, 0.0
     rz = 0.0
     for i in range(n):
-        r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
-        z0 = inv[i, 0, 0] * r0 + inv[i, 0, 1] * r1 + inv[i, 0, 2] * r2
-        z1 = inv[i, 1, 0] * r0 + inv[i, 1, 1] * r1 + inv[i, 1, 2] * r2
-        z2 = inv[i, 2, 0] * r0 + inv[i, 2, 1] * r1 + inv[i, 2, 2] * r2
-        p[i, 0], p[i, 1], p[i, 2] = z0, z1, z2
-        rz += r0 * z0 + r1 * z1 + r2 * z2
+        rz += _precond_row(inv, r, p, i)[1]
     it = 0
     rn = bn
     while it < maxit:
         pAp = 0.0
         for i in range(n):
-            y0 = 0.0
-            y1 = 0.0
-            y2 = 0.0
-            for q in range(indptr[i], indptr[i + 1]):
-                j = indices[q]
-                x0 = p[j, 0]
-                x1 = p[j, 1]
-                x2 = p[j, 2]
-                o = 9 * q
-                y0 += d9[o] * x0 + d9[o + 1] * x1 + d9[o + 2] * x2
-                y1 += d9[o + 3] * x0 + d9[o + 4] * x1 + d9[o + 5] * x2
-                y2 += d9[o + 6] * x0 + d9[o + 7] * x1 + d9[o + 8] * x2
+            y0, y1, y2 = _row_product(indptr, indices, d9, p, i)
             Ap[i, 0] = y0
             Ap[i, 1] = y1
             Ap[i, 2] = y2
@@ -156,16 +180,9 @@ def pcg_block_jacobi_after(indptr, indices, data, inv, b, tol, after, loose, max
         rr = 0.0
         rz_new = 0.0
         for i in range(n):
-            for a in range(3):
-                x[i, a] += al * p[i, a]
-                r[i, a] -= al * Ap[i, a]
-            r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
-            rr += r0 * r0 + r1 * r1 + r2 * r2
-            z0 = inv[i, 0, 0] * r0 + inv[i, 0, 1] * r1 + inv[i, 0, 2] * r2
-            z1 = inv[i, 1, 0] * r0 + inv[i, 1, 1] * r1 + inv[i, 1, 2] * r2
-            z2 = inv[i, 2, 0] * r0 + inv[i, 2, 1] * r1 + inv[i, 2, 2] * r2
-            z[i, 0], z[i, 1], z[i, 2] = z0, z1, z2
-            rz_new += r0 * z0 + r1 * z1 + r2 * z2
+            trr, trz = _step_row(x, r, z, p, Ap, inv, al, i)
+            rr += trr
+            rz_new += trz
         it += 1
         rn = math.sqrt(rr)
         if rn <= tol * bn or (it >= after and rn <= loose * bn):
@@ -200,12 +217,7 @@ def pcg_block_jacobi_par(indptr, indices, data, inv, b, tol, after, loose, maxit
     if bn == 0.0:
         return 0, 0.0
     for i in prange(n):
-        r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
-        z0 = inv[i, 0, 0] * r0 + inv[i, 0, 1] * r1 + inv[i, 0, 2] * r2
-        z1 = inv[i, 1, 0] * r0 + inv[i, 1, 1] * r1 + inv[i, 1, 2] * r2
-        z2 = inv[i, 2, 0] * r0 + inv[i, 2, 1] * r1 + inv[i, 2, 2] * r2
-        p[i, 0], p[i, 1], p[i, 2] = z0, z1, z2
-        t[i, 0] = r0 * z0 + r1 * z1 + r2 * z2
+        t[i, 0] = _precond_row(inv, r, p, i)[1]
     rz = 0.0
     for i in range(n):
         rz += t[i, 0]
@@ -213,18 +225,7 @@ def pcg_block_jacobi_par(indptr, indices, data, inv, b, tol, after, loose, maxit
     rn = bn
     while it < maxit:
         for i in prange(n):
-            y0 = 0.0
-            y1 = 0.0
-            y2 = 0.0
-            for q in range(indptr[i], indptr[i + 1]):
-                j = indices[q]
-                x0 = p[j, 0]
-                x1 = p[j, 1]
-                x2 = p[j, 2]
-                o = 9 * q
-                y0 += d9[o] * x0 + d9[o + 1] * x1 + d9[o + 2] * x2
-                y1 += d9[o + 3] * x0 + d9[o + 4] * x1 + d9[o + 5] * x2
-                y2 += d9[o + 6] * x0 + d9[o + 7] * x1 + d9[o + 8] * x2
+            y0, y1, y2 = _row_product(indptr, indices, d9, p, i)
             Ap[i, 0] = y0
             Ap[i, 1] = y1
             Ap[i, 2] = y2
@@ -236,16 +237,7 @@ def pcg_block_jacobi_par(indptr, indices, data, inv, b, tol, after, loose, maxit
             break
         al = rz / pAp
         for i in prange(n):
-            for a in range(3):
-                x[i, a] += al * p[i, a]
-                r[i, a] -= al * Ap[i, a]
-            r0, r1, r2 = r[i, 0], r[i, 1], r[i, 2]
-            t[i, 0] = r0 * r0 + r1 * r1 + r2 * r2
-            z0 = inv[i, 0, 0] * r0 + inv[i, 0, 1] * r1 + inv[i, 0, 2] * r2
-            z1 = inv[i, 1, 0] * r0 + inv[i, 1, 1] * r1 + inv[i, 1, 2] * r2
-            z2 = inv[i, 2, 0] * r0 + inv[i, 2, 1] * r1 + inv[i, 2, 2] * r2
-            z[i, 0], z[i, 1], z[i, 2] = z0, z1, z2
-            t[i, 1] = r0 * z0 + r1 * z1 + r2 * z2
+            t[i, 0], t[i, 1] = _step_row(x, r, z, p, Ap, inv, al, i)
         rr = 0.0
         rz_new = 0.0
         for i in range(n):
