@@ -228,6 +228,27 @@ def plane_project(p, vv, nn, c0, x0):
                 p[v, a] -= c * nn[r, a]
 
 
+@njit(cache=True)
+def _principal_csc(indptr, indices, data, pos, idx, out_ptr, out_ind, out_val):
+    """The principal submatrix R[idx][:, idx] of the CSC matrix (indptr, indices, data) (row
+    indices sorted in each column) as CSC arrays into the out arrays (``pos``: each row's
+    position in ``idx`` or -1; ``idx`` ascending, so the rows stay sorted): the arrays scipy's
+    ``R[idx][:, idx].tocsc()`` gives, without its two fancy-indexing copies and conversion.
+    Returns the entry count."""
+    k = 0
+    out_ptr[0] = 0
+    for j in range(idx.shape[0]):
+        c = idx[j]
+        for q in range(indptr[c], indptr[c + 1]):
+            r = pos[indices[q]]
+            if r >= 0:
+                out_ind[k] = r
+                out_val[k] = data[q]
+                k += 1
+        out_ptr[j + 1] = k
+    return k
+
+
 _NO_CONTACTS = (np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros((0, 3)), 0)
 
 
@@ -262,6 +283,7 @@ class GlobalStrainStep:
         self.smooth = 0
         self._planes = None
         self._g_idx = None
+        self._Rc = self._sub_pos = self._sub_ind = None
         # the step's edges grouped by colour (``edges`` comes colour-sorted from the strain
         # limit's bind, ``sel`` ascending): the Gauss-Seidel smoothing sweeps them
         self.s_edges = np.ascontiguousarray(edges[self.sel])
@@ -409,6 +431,7 @@ class GlobalStrainStep:
         A = (JW @ J.T).tocsr()
         dg = A.diagonal()
         R = (A + sp.diags(alpha * dg + 1e-300)).tocsr()
+        self._principal_of(R)
         F = C > 0.0
         if F0 is not None:  # warm start: the last pass's active set
             F |= F0 if ok is None else F0[ok]
@@ -424,7 +447,7 @@ class GlobalStrainStep:
                     dl = self._schur(R, C, base, drop, add, idx)
                     self.stats["updates"] = self.stats.get("updates", 0) + 1
             if dl is None:
-                lu = self._splu(R[idx][:, idx])
+                lu = self._splu(self._principal(idx))
                 dl = lu.solve(C[idx])
                 if update:
                     pos = np.full(len(C), -1, np.int64)
@@ -445,10 +468,36 @@ class GlobalStrainStep:
             F[inn] = True
         nbad, lu, idx, dl = best
         if lu is None and need_lu:
-            lu = self._splu(R[idx][:, idx])
+            lu = self._splu(self._principal(idx))
         self.stats["unpivoted"] = max(self.stats.get("unpivoted", 0), nbad)
         rows = idx if ok is None else ok[idx]
         return lu, rows, J[idx], dl
+
+    def _principal_of(self, R):
+        """Take R (CSR, symmetric in structure) as the matrix ``_principal`` extracts from: its
+        CSC form once a ``_pivot`` call, the work arrays grown to its size."""
+        self._Rc = R.tocsc()
+        n, nnz = R.shape[0], self._Rc.nnz
+        if self._sub_pos is None or len(self._sub_pos) < n:
+            self._sub_pos = np.full(2 * n, -1, np.int64)
+            self._sub_ptr = np.zeros(2 * n + 1, np.int32)
+        if self._sub_ind is None or len(self._sub_ind) < nnz:
+            self._sub_ind = np.zeros(2 * nnz, np.int32)
+            self._sub_val = np.zeros(2 * nnz)
+
+    def _principal(self, idx):
+        """R[idx][:, idx] as CSC (``_principal_csc``; the same arrays as scipy's indexing
+        followed by tocsc, so the factor is bitwise the same: 7.3 + 2.4 ms -> ~1 ms a pivot
+        on the 128 x 128 drop's 30k-row systems). The arrays are fresh copies: the factor
+        outlives the next extraction."""
+        Rc, pos = self._Rc, self._sub_pos
+        m = len(idx)
+        pos[idx] = np.arange(m)
+        k = _principal_csc(Rc.indptr, Rc.indices, Rc.data, pos, idx, self._sub_ptr,
+                           self._sub_ind, self._sub_val)
+        pos[idx] = -1
+        return sp.csc_matrix((self._sub_val[:k].copy(), self._sub_ind[:k].copy(),
+                              self._sub_ptr[:m + 1].copy()), shape=(m, m))
 
     @staticmethod
     def _schur(R, C, base, drop, add, idx):
