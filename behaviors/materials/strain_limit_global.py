@@ -69,7 +69,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from numba import njit
+from numba import get_num_threads, njit
 
 from ..collision.narrowphase import _pt_tri_sq, _seg_seg_sq
 
@@ -249,7 +249,45 @@ def _principal_csc(indptr, indices, data, pos, idx, out_ptr, out_ind, out_val):
     return k
 
 
+@njit(cache=True)
+def _sweeps_serial(p, w, edges, limit, color_ptr, n, planes, vv, nn, c0, x0):
+    """``n`` Gauss-Seidel sweeps of the edge limits, each followed (with ``planes``) by the
+    contact planes: ``project_strain_limit`` and ``plane_project`` in one call, serial. Within
+    a colour the edges share no vertex, so this is bitwise the parallel kernel's result at any
+    thread count; at one thread it skips the parallel launches (one per colour and sweep):
+    40 sweeps of the 128 x 128 drop's 49k edges 27-32 -> 18-30 ms. Returns nothing."""
+    for _ in range(n):
+        for c in range(color_ptr.shape[0] - 1):
+            for j in range(color_ptr[c], color_ptr[c + 1]):
+                a, b = edges[j, 0], edges[j, 1]
+                ws = w[a] + w[b]
+                if ws <= 0.0:
+                    continue
+                dx = p[a, 0] - p[b, 0]
+                dy = p[a, 1] - p[b, 1]
+                dz = p[a, 2] - p[b, 2]
+                ln = np.sqrt(dx * dx + dy * dy + dz * dz)
+                C = ln - limit[j]
+                if C <= 0.0 or ln < 1e-15:
+                    continue
+                s = C / (ws * ln)
+                p[a, 0] -= w[a] * s * dx
+                p[a, 1] -= w[a] * s * dy
+                p[a, 2] -= w[a] * s * dz
+                p[b, 0] += w[b] * s * dx
+                p[b, 1] += w[b] * s * dy
+                p[b, 2] += w[b] * s * dz
+        if planes:
+            plane_project(p, vv, nn, c0, x0)
+
+
+#: exact speedups of the step (positions bitwise the same): the pivots' principal submatrices
+#: by ``_principal_csc`` and, at one numba thread, the smoothing sweeps by ``_sweeps_serial``;
+#: False = scipy's indexing and the parallel kernel (for before/after timings in one process)
+FAST_EXACT = True
+
 _NO_CONTACTS = (np.zeros((0, 4), np.int64), np.zeros((0, 4)), np.zeros((0, 3)), 0)
+_NO_PLANES = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
 
 
 def _contact_planes(best, nrm, p):
@@ -431,7 +469,8 @@ class GlobalStrainStep:
         A = (JW @ J.T).tocsr()
         dg = A.diagonal()
         R = (A + sp.diags(alpha * dg + 1e-300)).tocsr()
-        self._principal_of(R)
+        if FAST_EXACT:
+            self._principal_of(R)
         F = C > 0.0
         if F0 is not None:  # warm start: the last pass's active set
             F |= F0 if ok is None else F0[ok]
@@ -447,7 +486,7 @@ class GlobalStrainStep:
                     dl = self._schur(R, C, base, drop, add, idx)
                     self.stats["updates"] = self.stats.get("updates", 0) + 1
             if dl is None:
-                lu = self._splu(self._principal(idx))
+                lu = self._splu(self._principal(idx) if FAST_EXACT else R[idx][:, idx])
                 dl = lu.solve(C[idx])
                 if update:
                     pos = np.full(len(C), -1, np.int64)
@@ -468,7 +507,7 @@ class GlobalStrainStep:
             F[inn] = True
         nbad, lu, idx, dl = best
         if lu is None and need_lu:
-            lu = self._splu(self._principal(idx))
+            lu = self._splu(self._principal(idx) if FAST_EXACT else R[idx][:, idx])
         self.stats["unpivoted"] = max(self.stats.get("unpivoted", 0), nbad)
         rows = idx if ok is None else ok[idx]
         return lu, rows, J[idx], dl
@@ -546,6 +585,14 @@ class GlobalStrainStep:
         from .strain_limit import project_strain_limit
 
         pl = self._planes
+        if FAST_EXACT and get_num_threads() == 1:
+            if pl is None:
+                _sweeps_serial(p, w, self.s_edges, self.s_limit, self.s_ptr, self.smooth,
+                               False, *_NO_PLANES)
+            else:
+                _sweeps_serial(p, w, self.s_edges, self.s_limit, self.s_ptr, self.smooth,
+                               True, *pl)
+            return
         for _ in range(self.smooth):
             project_strain_limit(p, w, self.s_edges, self.s_limit, self.s_ptr)
             if pl is not None:

@@ -565,6 +565,49 @@ def global_passes(name, frames, extras):
                   f"(frames 2-{frames}: {sum(r.tot[2:]):.1f} s), the step {r.step_cpu:.1f} s")
 
 
+def fast_exact(name, frames):
+    """strain_limit_global.FAST_EXACT off / on: two runs of the scene at the defaults stepped
+    frame by frame in turn (which goes first alternates: ABBA), CPU ms per frame and in the
+    global step, and whether the positions are bitwise equal after every frame."""
+    import hashlib
+
+    from lokigraph.behaviors.materials import strain_limit_global as G
+
+    runs = []
+    for flag in (False, True):
+        r = _Run(f"FAST_EXACT={flag}", _scene_path(name))
+        g = r.sim.compiled.schedule.find("StrainLimitConstraint")[0].data.glob
+        r.flag, r.gcpu, r.g = flag, [], g
+        grun = g.run
+
+        def timed(*a, grun=grun, r=r, **k):
+            t = time.process_time()
+            out = grun(*a, **k)
+            r.gcpu[-1] += time.process_time() - t
+            return out
+
+        g.run = timed
+        runs.append(r)
+    print("| frame | off CPU ms | on CPU ms | off step ms | on step ms | worst % | equal |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for k in range(frames):
+        for r in (runs if k % 2 == 0 else runs[::-1]):
+            G.FAST_EXACT = r.flag
+            r.gcpu.append(0.0)
+            r.step()
+        G.FAST_EXACT = True
+        h = [hashlib.sha256(r.sim.state.particle_q.tobytes()).hexdigest()[:12] for r in runs]
+        a, b = runs
+        print(f"| {k + 1} | {1e3 * a.cpu[-1]:.0f} | {1e3 * b.cpu[-1]:.0f} | "
+              f"{1e3 * a.gcpu[-1]:.0f} | {1e3 * b.gcpu[-1]:.0f} | {100 * b.worst[-1]:.2f} | "
+              f"{h[0] == h[1]} {h[1]} |", flush=True)
+    a, b = runs
+    for lbl, f in (("sum frames 2-N", np.sum), ("median frames 2-N", np.median)):
+        ca, cb, ga, gb = (f(x[1:]) for x in (a.cpu, b.cpu, a.gcpu, b.gcpu))
+        print(f"{lbl}: CPU off {1e3 * ca:.0f} / on {1e3 * cb:.0f} ms ({cb / ca:.3f}x), the step "
+              f"off {1e3 * ga:.0f} / on {1e3 * gb:.0f} ms ({gb / max(ga, 1e-9):.3f}x)")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=24)
@@ -581,6 +624,8 @@ def main(argv=None):
                     "substeps, per frame, at the defaults (or the first --set)")
     ap.add_argument("--passes", metavar="SCENE", help="the global step's passes per frame "
                     "and the excess after each pass, for each --set")
+    ap.add_argument("--fast-exact", metavar="SCENE", help="strain_limit_global.FAST_EXACT "
+                    "off / on, interleaved: CPU per frame and bitwise equality")
     ap.add_argument("--girth", action="store_true", help="sleeve_elbow: ring girths against "
                     "the girth the arm forces, per frame")
     ap.add_argument("--where", action="store_true", help="sleeve_elbow: where the worst edge "
@@ -589,6 +634,8 @@ def main(argv=None):
     extras = [_parse_set(x) for x in args.set]
     if args.stages:
         stages(args.stages, args.frames, extras)
+    elif args.fast_exact:
+        fast_exact(args.fast_exact, args.frames)
     elif args.passes:
         global_passes(args.passes, args.frames, extras)
     elif args.girth:
