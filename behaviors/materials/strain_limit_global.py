@@ -62,6 +62,16 @@ sweeps (~3 ms a pass) and the products. ``fast`` (strain_limit.global_fast_lu) f
 small supernodes (8.2 -> 5.7 ms on frame 9's systems); ``chord`` (global_chord) re-solves the
 last factorised active set with its factor while the passes converge (chord Newton: about 0.85
 of the excess left per chord pass against 0.55 per factorised one, at a fifth of the cost).
+
+Where the 128 x 128 drop's time goes at the defaults (graphs/bench/cloth_sphere_128.yaml, frames
+7-12, NUMBA_NUM_THREADS=1, cProfile; 6.9 s a frame against the old defaults' 3.7 s): the step
+2.47 s a frame, of it 39.5 SuperLU factorisations (13 LCP passes x 3 pivots) at 34 ms, 1.39 s
+(56 %); 1140 smoothing sweeps (with the guard's halved steps), 0.46 s (19 %); the rest of
+``_pivot`` (J W J^T, the diagonal, the submatrices, C - A dlam) 0.28 s (11 %); the collider
+contact rows' closest points 0.19 s (8 %); solves 0.08 s. ``FAST_EXACT`` (submatrices by a
+numba kernel, serial sweeps at one thread) is bitwise the same at about 0.93x the step's median
+CPU; the factorisations are what is left: reusing an ordering changes the fill (``_splu``), and
+global_pivots 1 holds 2.39 % there at the same cost (global_chord 6: the same 1.90 %, same cost).
 """
 
 from __future__ import annotations

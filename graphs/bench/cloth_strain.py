@@ -71,6 +71,13 @@ CCD safe step and at the frame's end, with the contacts still active after the f
     .venv/bin/python graphs/bench/cloth_strain.py --passes cloth_on_sphere --frames 14 \
         --set strain_limit.global_passes=20 ... --set ... strain_limit.global_smooth=40
 
+``--fast-exact SCENE``: strain_limit_global.FAST_EXACT off and on, two runs at the defaults
+stepped in turn (ABBA by frame), CPU per frame and in the global step, and the positions'
+bitwise equality after every frame::
+
+    NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/cloth_strain.py \
+        --fast-exact graphs/bench/cloth_sphere_128.yaml --frames 12
+
 ``--girth``: sleeve_elbow, per frame, the circumferential rings over the elbow (8, 9, 10) and at
 the wrist (16): girth strain, worst ring edge strain, and the strain the arm forces on the ring
 (the perimeter of the convex hull of the arm's section -- upper arm, forearm, elbow cap at
