@@ -25,29 +25,36 @@ from .. import topology as T
 from ..collision.narrowphase import _pt_tri_sq, _seg_seg_sq
 
 
+@njit(cache=True, inline="always")
+def limit_edge(p, w, edges, limit, j):
+    """Shorten edge j to its limit [m] if it is longer (hard, unilateral), mass-weighted."""
+    a, b = edges[j, 0], edges[j, 1]
+    ws = w[a] + w[b]
+    if ws <= 0.0:
+        return
+    dx = p[a, 0] - p[b, 0]
+    dy = p[a, 1] - p[b, 1]
+    dz = p[a, 2] - p[b, 2]
+    ln = np.sqrt(dx * dx + dy * dy + dz * dz)
+    C = ln - limit[j]
+    if C <= 0.0 or ln < 1e-15:
+        return
+    s = C / (ws * ln)
+    p[a, 0] -= w[a] * s * dx
+    p[a, 1] -= w[a] * s * dy
+    p[a, 2] -= w[a] * s * dz
+    p[b, 0] += w[b] * s * dx
+    p[b, 1] += w[b] * s * dy
+    p[b, 2] += w[b] * s * dz
+
+
 @njit(cache=True, parallel=True)
 def project_strain_limit(p, w, edges, limit, color_ptr):
-    """Shorten every edge longer than its limit [m] (hard, unilateral). Returns nothing."""
+    """Shorten every edge longer than its limit [m] (hard, unilateral; ``limit_edge``, the
+    edges of a colour in parallel). Returns nothing."""
     for c in range(color_ptr.shape[0] - 1):
         for j in prange(color_ptr[c], color_ptr[c + 1]):
-            a, b = edges[j, 0], edges[j, 1]
-            ws = w[a] + w[b]
-            if ws <= 0.0:
-                continue
-            dx = p[a, 0] - p[b, 0]
-            dy = p[a, 1] - p[b, 1]
-            dz = p[a, 2] - p[b, 2]
-            ln = np.sqrt(dx * dx + dy * dy + dz * dz)
-            C = ln - limit[j]
-            if C <= 0.0 or ln < 1e-15:
-                continue
-            s = C / (ws * ln)
-            p[a, 0] -= w[a] * s * dx
-            p[a, 1] -= w[a] * s * dy
-            p[a, 2] -= w[a] * s * dz
-            p[b, 0] += w[b] * s * dx
-            p[b, 1] += w[b] * s * dy
-            p[b, 2] += w[b] * s * dz
+            limit_edge(p, w, edges, limit, j)
 
 
 @njit(cache=True)

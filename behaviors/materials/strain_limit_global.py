@@ -82,6 +82,7 @@ import scipy.sparse.linalg as spla
 from numba import get_num_threads, njit
 
 from ..collision.narrowphase import _pt_tri_sq, _seg_seg_sq
+from .strain_limit import limit_edge
 
 
 @njit(cache=True)
@@ -269,24 +270,7 @@ def _sweeps_serial(p, w, edges, limit, color_ptr, n, planes, vv, nn, c0, x0):
     for _ in range(n):
         for c in range(color_ptr.shape[0] - 1):
             for j in range(color_ptr[c], color_ptr[c + 1]):
-                a, b = edges[j, 0], edges[j, 1]
-                ws = w[a] + w[b]
-                if ws <= 0.0:
-                    continue
-                dx = p[a, 0] - p[b, 0]
-                dy = p[a, 1] - p[b, 1]
-                dz = p[a, 2] - p[b, 2]
-                ln = np.sqrt(dx * dx + dy * dy + dz * dz)
-                C = ln - limit[j]
-                if C <= 0.0 or ln < 1e-15:
-                    continue
-                s = C / (ws * ln)
-                p[a, 0] -= w[a] * s * dx
-                p[a, 1] -= w[a] * s * dy
-                p[a, 2] -= w[a] * s * dz
-                p[b, 0] += w[b] * s * dx
-                p[b, 1] += w[b] * s * dy
-                p[b, 2] += w[b] * s * dz
+                limit_edge(p, w, edges, limit, j)
         if planes:
             plane_project(p, vv, nn, c0, x0)
 
