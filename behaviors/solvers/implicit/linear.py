@@ -53,35 +53,6 @@ def apply_blocks(inv, r, z):
             z[i, a] = inv[i, a, 0] * r[i, 0] + inv[i, a, 1] * r[i, 1] + inv[i, a, 2] * r[i, 2]
 
 
-@njit(cache=True)
-def bsr_matvec(indptr, indices, data, x, y):
-    """y = A x for a BSR matrix of 3x3 blocks, vectors (n, 3)."""
-    n = indptr.shape[0] - 1
-    for i in range(n):
-        y0 = 0.0
-        y1 = 0.0
-        y2 = 0.0
-        for q in range(indptr[i], indptr[i + 1]):
-            j = indices[q]
-            x0 = x[j, 0]
-            x1 = x[j, 1]
-            x2 = x[j, 2]
-            y0 += data[q, 0, 0] * x0 + data[q, 0, 1] * x1 + data[q, 0, 2] * x2
-            y1 += data[q, 1, 0] * x0 + data[q, 1, 1] * x1 + data[q, 1, 2] * x2
-            y2 += data[q, 2, 0] * x0 + data[q, 2, 1] * x1 + data[q, 2, 2] * x2
-        y[i, 0] = y0
-        y[i, 1] = y1
-        y[i, 2] = y2
-
-
-@njit(cache=True)
-def _dot(a, b):
-    s = 0.0
-    for i in range(a.shape[0]):
-        s += a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2]
-    return s
-
-
 @njit(cache=True, inline="always")
 def _row_product(indptr, indices, d9, p, i):
     """Row i of the BSR product A p, the blocks read through the flat view ``d9`` of the data
@@ -99,6 +70,22 @@ def _row_product(indptr, indices, d9, p, i):
         y1 += d9[o + 3] * x0 + d9[o + 4] * x1 + d9[o + 5] * x2
         y2 += d9[o + 6] * x0 + d9[o + 7] * x1 + d9[o + 8] * x2
     return y0, y1, y2
+
+
+@njit(cache=True)
+def bsr_matvec(indptr, indices, data, x, y):
+    """y = A x for a BSR matrix of 3x3 blocks, vectors (n, 3) (``_row_product`` per row)."""
+    d9 = data.reshape(-1)
+    for i in range(indptr.shape[0] - 1):
+        y[i, 0], y[i, 1], y[i, 2] = _row_product(indptr, indices, d9, x, i)
+
+
+@njit(cache=True)
+def _dot(a, b):
+    s = 0.0
+    for i in range(a.shape[0]):
+        s += a[i, 0] * b[i, 0] + a[i, 1] * b[i, 1] + a[i, 2] * b[i, 2]
+    return s
 
 
 @njit(cache=True, inline="always")
