@@ -74,6 +74,33 @@ def strain_excess(p, edges, limit):
 PINCH_COS = -0.5
 
 
+@njit(cache=True, inline="always")
+def row_geometry(p, rows, nrm, onesided, is_vf, r):
+    """Contact row r (vertex-face when ``is_vf``, else edge-edge) at ``p`` as ``project_vf`` /
+    ``project_ee`` evaluate it: the 4 vertices' coefficients of the closest points' separation,
+    the normal (the stored one; on its side, and unless one-sided, the current closest-point
+    direction) and the separation along it. Returns (c0, c1, c2, c3, n0, n1, n2, gap)."""
+    i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+    n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
+    if is_vf:
+        d2, b0, b1, b2 = _pt_tri_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1],
+                                    p[i1, 2], p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0],
+                                    p[i3, 1], p[i3, 2])
+        c0, c1, c2, c3 = 1.0, -b0, -b1, -b2
+    else:
+        d2, s, t = _seg_seg_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
+                               p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])
+        c0, c1, c2, c3 = 1.0 - s, s, -(1.0 - t), -t
+    dv0 = c0 * p[i0, 0] + c1 * p[i1, 0] + c2 * p[i2, 0] + c3 * p[i3, 0]
+    dv1 = c0 * p[i0, 1] + c1 * p[i1, 1] + c2 * p[i2, 1] + c3 * p[i3, 1]
+    dv2 = c0 * p[i0, 2] + c1 * p[i1, 2] + c2 * p[i2, 2] + c3 * p[i3, 2]
+    if not (is_vf and onesided[r]):
+        dist = np.sqrt(d2)
+        if dist > 1e-12 and dv0 * n0 + dv1 * n1 + dv2 * n2 > 0.0:
+            n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
+    return c0, c1, c2, c3, n0, n1, n2, dv0 * n0 + dv1 * n1 + dv2 * n2
+
+
 @njit(cache=True)
 def count_pinched(p, w, cloth, rows, nrm, target, onesided, is_vf, first, seen):
     """Vertices (w > 0, ``cloth``) of collider contact rows (rows with a vertex not of the
@@ -90,24 +117,8 @@ def count_pinched(p, w, cloth, rows, nrm, target, onesided, is_vf, first, seen):
         i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         if cloth[i0] and cloth[i1] and cloth[i2] and cloth[i3]:
             continue
-        if is_vf:
-            d2, b0, b1, b2 = _pt_tri_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1],
-                                        p[i1, 2], p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0],
-                                        p[i3, 1], p[i3, 2])
-            c0, c1, c2, c3 = 1.0, -b0, -b1, -b2
-        else:
-            d2, s, t = _seg_seg_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
-                                   p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])
-            c0, c1, c2, c3 = 1.0 - s, s, -(1.0 - t), -t
-        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
-        dv0 = c0 * p[i0, 0] + c1 * p[i1, 0] + c2 * p[i2, 0] + c3 * p[i3, 0]
-        dv1 = c0 * p[i0, 1] + c1 * p[i1, 1] + c2 * p[i2, 1] + c3 * p[i3, 1]
-        dv2 = c0 * p[i0, 2] + c1 * p[i1, 2] + c2 * p[i2, 2] + c3 * p[i3, 2]
-        if not (is_vf and onesided[r]):
-            dist = np.sqrt(d2)
-            if dist > 1e-12 and dv0 * n0 + dv1 * n1 + dv2 * n2 > 0.0:
-                n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
-        if dv0 * n0 + dv1 * n1 + dv2 * n2 >= 2.0 * target[r]:
+        c0, c1, c2, c3, n0, n1, n2, gap = row_geometry(p, rows, nrm, onesided, is_vf, r)
+        if gap >= 2.0 * target[r]:
             continue
         for q in range(4):
             v = rows[r, q]

@@ -81,8 +81,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numba import get_num_threads, njit
 
-from ..collision.narrowphase import _pt_tri_sq, _seg_seg_sq
-from .strain_limit import limit_edge
+from .strain_limit import limit_edge, row_geometry
 
 
 @njit(cache=True)
@@ -129,24 +128,8 @@ def contact_rows(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, o
         i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         if collider_only and w[i0] > 0.0 and w[i1] > 0.0 and w[i2] > 0.0 and w[i3] > 0.0:
             continue
-        n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
-        if is_vf:
-            d2, b0, b1, b2 = _pt_tri_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1],
-                                        p[i1, 2], p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0],
-                                        p[i3, 1], p[i3, 2])
-            c0, c1, c2, c3 = 1.0, -b0, -b1, -b2
-        else:
-            d2, s, t = _seg_seg_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
-                                   p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])
-            c0, c1, c2, c3 = 1.0 - s, s, -(1.0 - t), -t
-        dv0 = c0 * p[i0, 0] + c1 * p[i1, 0] + c2 * p[i2, 0] + c3 * p[i3, 0]
-        dv1 = c0 * p[i0, 1] + c1 * p[i1, 1] + c2 * p[i2, 1] + c3 * p[i3, 1]
-        dv2 = c0 * p[i0, 2] + c1 * p[i1, 2] + c2 * p[i2, 2] + c3 * p[i3, 2]
-        if not (is_vf and onesided[r]):
-            dist = np.sqrt(d2)
-            if dist > 1e-12 and dv0 * n0 + dv1 * n1 + dv2 * n2 > 0.0:
-                n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
-        C = dv0 * n0 + dv1 * n1 + dv2 * n2 - target[r]
+        c0, c1, c2, c3, n0, n1, n2, gap = row_geometry(p, rows, nrm, onesided, is_vf, r)
+        C = gap - target[r]
         if C >= margin * target[r] and not keep[r]:
             continue
         den = c0 * c0 * w[i0] + c1 * c1 * w[i1] + c2 * c2 * w[i2] + c3 * c3 * w[i3]
