@@ -22,6 +22,8 @@ from lokigraph.components.core import Dynamic
 from lokigraph.components.materials import DiscreteShell, Rod
 
 from .. import topology as T
+from ..collision import contacts as _contacts
+from ..collision.contacts import _slid_apart
 from ..collision.narrowphase import _pt_tri_sq, _seg_seg_sq
 
 
@@ -101,8 +103,27 @@ def row_geometry(p, rows, nrm, onesided, is_vf, r):
     return c0, c1, c2, c3, n0, n1, n2, dv0 * n0 + dv1 * n1 + dv2 * n2
 
 
+@njit(cache=True, inline="always")
+def row_slid_apart(p, w, rows, target, onesided, is_vf, r, c0, c1, c2, c3, gap, mode):
+    """``contacts.SLIDE_APART`` for contact row r as ``row_geometry`` evaluated it (its
+    coefficients and its separation ``gap`` along the normal): a two-sided row against a
+    collider on the far side of its start normal whose closest points lie at least its target
+    apart across that normal, inactive as ``project_vf`` / ``project_ee`` take it with
+    ``slide`` (``mode``: ``contacts.SLIDE_APART``)."""
+    if gap > 0.0 or mode == 0 or (is_vf and onesided[r]):
+        return False
+    i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+    dv0 = c0 * p[i0, 0] + c1 * p[i1, 0] + c2 * p[i2, 0] + c3 * p[i3, 0]
+    dv1 = c0 * p[i0, 1] + c1 * p[i1, 1] + c2 * p[i2, 1] + c3 * p[i3, 1]
+    dv2 = c0 * p[i0, 2] + c1 * p[i1, 2] + c2 * p[i2, 2] + c3 * p[i3, 2]
+    d2 = dv0 * dv0 + dv1 * dv1 + dv2 * dv2
+    if is_vf:
+        return _slid_apart(d2, gap, target[r], w[i0], w[i1] + w[i2] + w[i3], mode)
+    return _slid_apart(d2, gap, target[r], w[i0] + w[i1], w[i2] + w[i3], mode)
+
+
 @njit(cache=True)
-def count_pinched(p, w, cloth, rows, nrm, target, onesided, is_vf, first, seen):
+def count_pinched(p, w, cloth, rows, nrm, target, onesided, is_vf, first, seen, slide=0):
     """Vertices (w > 0, ``cloth``) of collider contact rows (rows with a vertex not of the
     cloth: kinematic, w = 0, or of another element, the compliant skin of an arm) within
     twice the row's target distance at ``p``, whose outward normals (from the collider to the
@@ -111,14 +132,17 @@ def count_pinched(p, w, cloth, rows, nrm, target, onesided, is_vf, first, seen):
     strain_limit_global.contact_normals) make more than the angle of ``PINCH_COS`` with the
     first such normal met at that vertex: cloth held between two collider surfaces facing each
     other (a crease). ``first`` (n, 3) and ``seen`` (n,) are scratch (``seen`` cleared by the
-    caller). Returns the count of pinched vertices (each counted once)."""
+    caller). ``slide``: rows slid apart along a collider are not contacts
+    (``row_slid_apart``, ``contacts.SLIDE_APART``). Returns the count of pinched vertices
+    (each counted once)."""
     k = 0
     for r in range(rows.shape[0]):
         i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         if cloth[i0] and cloth[i1] and cloth[i2] and cloth[i3]:
             continue
         c0, c1, c2, c3, n0, n1, n2, gap = row_geometry(p, rows, nrm, onesided, is_vf, r)
-        if gap >= 2.0 * target[r]:
+        if gap >= 2.0 * target[r] or (slide and row_slid_apart(
+                p, w, rows, target, onesided, is_vf, r, c0, c1, c2, c3, gap, slide)):
             continue
         for q in range(4):
             v = rows[r, q]
@@ -539,10 +563,11 @@ class StrainLimitConstraint(ConstraintBehavior):
             seen[:] = 0
             w = ctx.model.particle_inv_mass
             x = ctx.state.particle_q
+            sl = _contacts.SLIDE_APART
             k = count_pinched(x, w, cloth, c.vf, c.vf_n, c.vf_target, c.vf_onesided, True,
-                              first, seen)
+                              first, seen, sl)
             k += count_pinched(x, w, cloth, c.ee, c.ee_n, c.ee_target, c.vf_onesided[:0],
-                               False, first, seen)
+                               False, first, seen, sl)
         ctx.stats["max_pinched"] = max(ctx.stats.get("max_pinched", 0), k)
         if k:
             self._joint_n = self._pinch_n

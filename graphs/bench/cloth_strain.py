@@ -321,6 +321,149 @@ def stages(name, frames, extras):
         cls.finalize, cls.after_finalize = fin0, aft0
 
 
+def _ball(sim):
+    """The vertex slice of the scene's kinematic collider (the element named 'ball'), or None."""
+    els = {e.name: e for e in sim.compiled.scene.elements}
+    return els["ball"].vertex_slice if "ball" in els else None
+
+
+def substages(name, frames, extras, over=0.05):
+    """Per substep: the worst edge strain after the interleaved iterations, after the final
+    collision rounds, after the global strain step (where it runs), after the CCD safe step,
+    the global step's passes, and where the worst edge and the edges over ``over`` are at the
+    substep's end against the moving ball (see the module doc)."""
+    from lokigraph.behaviors.collision import contacts as C
+    from lokigraph.behaviors.materials import strain_limit as SL
+
+    cls, scls = C.CollisionConstraint, SL.StrainLimitConstraint
+    fin0, aft0, sfin0 = cls.finalize, cls.after_finalize, scls.finalize
+    rec = {}
+
+    def strain(p):
+        d = run.d
+        return np.linalg.norm(p[d.idx[:, 1]] - p[d.idx[:, 0]], axis=1) / d.rest - 1.0
+
+    def fin(self, ctx, d, p):
+        rec.clear()
+        rec["iter"] = strain(p).max()
+        rec["x"] = ctx.state.particle_q.copy()
+        fin0(self, ctx, d, p)
+        rec["final"] = strain(p).max()
+        rec["joint_n"] = max(b.joint_iterations() for b, _ in ctx.constraints
+                             if hasattr(b, "project_joint"))
+
+    def sfin(self, ctx, d, p):
+        g = d.glob if d is not None else None
+        n0 = g.stats["passes"] if g is not None else 0
+        sfin0(self, ctx, d, p)
+        if g is not None and g.stats["passes"] > n0:
+            rec["global"] = strain(p).max()
+            rec["passes"] = g.stats["passes"] - n0
+
+    def aft(self, ctx, d, p):
+        keys = ("ccd_hits", "ccd_zone_vertices")
+        s0 = [ctx.stats.get(k, 0) for k in keys]
+        aft0(self, ctx, d, p)
+        ccd = [ctx.stats.get(k, 0) - v for k, v in zip(keys, s0)]
+        e = strain(p)
+        rec["ccd"] = e.max()
+        sub = ctx.substep
+        row = f"| {frame} | {sub + 1} | " + " | ".join(
+            f"{100 * rec[k]:.2f}" if k in rec else "-" for k in ("iter", "final", "global", "ccd"))
+        row += f" | {rec.get('passes', '-')} | {rec['joint_n']} | {ccd[0]} / {ccd[1]} |"
+        if ball is not None:
+            dd = run.d
+            c1 = p[ball].mean(axis=0)
+            R = float(np.linalg.norm(p[ball] - c1, axis=1).mean())
+            vb = c1 - rec["x"][ball].mean(axis=0)
+            mid = 0.5 * (p[dd.idx[:, 0]] + p[dd.idx[:, 1]])
+            rel = mid - c1
+            rn = np.linalg.norm(rel, axis=1)
+            gap = rn - R
+            j = int(e.argmax())
+            sp = float(np.linalg.norm(vb))
+            lead = float(rel[j] @ vb / (rn[j] * sp)) if sp > 1e-12 else float("nan")
+            hot = e > over
+            row += (f" {1e3 * sp:.1f} | {1e3 * gap[j]:.1f} | {lead:+.2f} | "
+                    f"{rel[j, 1] / rn[j]:+.2f} | {int(hot.sum())} | "
+                    f"{int((hot & (gap < 0.005)).sum())} / {int((hot & (gap >= 0.005) & (gap < 0.03)).sum())}"
+                    f" / {int((hot & (gap >= 0.03)).sum())} |")
+        print(row, flush=True)
+
+    ov = extras[0] if extras else {}
+    cls.finalize, cls.after_finalize, scls.finalize = fin, aft, sfin
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            run = _Run("", _variant(_scene_path(name), ov, Path(tmp)))
+            ball = _ball(run.sim)
+            print("| frame | substep | after iterations % | after final rounds % | after global "
+                  "step % | after CCD % | global passes | joint passes | CCD hits / zone vertices "
+                  "| ball motion mm | worst "
+                  "edge: gap to ball mm | along motion (cos) | up (cos) | edges > "
+                  f"{100 * over:.0f} % | of them gap < 5 mm / 5-30 mm / > 30 mm |")
+            print("|---" * 15 + "|")
+            for frame in range(1, frames + 1):
+                run.step()
+    finally:
+        cls.finalize, cls.after_finalize, scls.finalize = fin0, aft0, sfin0
+
+
+def install_slide_global():
+    """``contacts.SLIDE_APART`` in the global strain step's contact rows too: wraps
+    ``strain_limit_global.contact_rows`` (read by ``GlobalStrainStep._contact_set`` at call
+    time) so that, while ``SLIDE_APART`` is set, a copy of it runs that skips the rows
+    ``strain_limit.row_slid_apart`` finds slid apart (with it 0: the original, bitwise). The
+    change proposed for strain_limit_global.py, not edited here: ``contact_rows`` takes a
+    ``slide`` argument and skips those rows after ``row_geometry``; ``_contact_set`` passes
+    ``contacts.SLIDE_APART``."""
+    from numba import njit
+
+    from lokigraph.behaviors.collision import contacts as C
+    from lokigraph.behaviors.materials import strain_limit as SL
+    from lokigraph.behaviors.materials import strain_limit_global as SLG
+
+    if getattr(SLG.contact_rows, "slide_wrapper", False):
+        return
+    row_geometry, row_slid_apart = SL.row_geometry, SL.row_slid_apart
+    orig = SLG.contact_rows
+
+    @njit
+    def rows_slide(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf, out_n,
+                   margin, collider_only, mode):
+        k = 0
+        for r in range(rows.shape[0]):
+            i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+            if collider_only and w[i0] > 0.0 and w[i1] > 0.0 and w[i2] > 0.0 and w[i3] > 0.0:
+                continue
+            c0, c1, c2, c3, n0, n1, n2, gap = row_geometry(p, rows, nrm, onesided, is_vf, r)
+            if row_slid_apart(p, w, rows, target, onesided, is_vf, r, c0, c1, c2, c3, gap,
+                              mode):
+                continue
+            C = gap - target[r]
+            if C >= margin * target[r] and not keep[r]:
+                continue
+            den = c0 * c0 * w[i0] + c1 * c1 * w[i1] + c2 * c2 * w[i2] + c3 * c3 * w[i3]
+            if den <= 0.0:
+                continue
+            keep[r] = True
+            out_c[k] = C
+            out_v[k, 0], out_v[k, 1], out_v[k, 2], out_v[k, 3] = i0, i1, i2, i3
+            out_cf[k, 0], out_cf[k, 1], out_cf[k, 2], out_cf[k, 3] = c0, c1, c2, c3
+            out_n[k, 0], out_n[k, 1], out_n[k, 2] = n0, n1, n2
+            k += 1
+        return k
+
+    def contact_rows(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf,
+                     out_n, margin=0.0, collider_only=False):
+        if not C.SLIDE_APART:
+            return orig(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf,
+                        out_n, margin, collider_only)
+        return rows_slide(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf,
+                          out_n, float(margin), bool(collider_only), int(C.SLIDE_APART))
+
+    contact_rows.slide_wrapper = True
+    SLG.contact_rows = contact_rows
+
 def _hull_perimeter(P):
     from scipy.spatial import ConvexHull
 
@@ -629,6 +772,10 @@ def main(argv=None):
                     "in reverse order (A B B A), stepped in turn frame by frame")
     ap.add_argument("--stages", metavar="SCENE", help="worst strain after each stage of the "
                     "substeps, per frame, at the defaults (or the first --set)")
+    ap.add_argument("--substages", metavar="SCENE", help="per substep: worst strain after "
+                    "each stage (the global step included), the global step's passes and "
+                    "where the worst edge is against the moving ball, at the defaults (or "
+                    "the first --set)")
     ap.add_argument("--passes", metavar="SCENE", help="the global step's passes per frame "
                     "and the excess after each pass, for each --set")
     ap.add_argument("--fast-exact", metavar="SCENE", help="strain_limit_global.FAST_EXACT "
@@ -637,10 +784,27 @@ def main(argv=None):
                     "the girth the arm forces, per frame")
     ap.add_argument("--where", action="store_true", help="sleeve_elbow: where the worst edge "
                     "is, what it touches, the edges over 2 %%, per frame and --set")
+    ap.add_argument("--contacts-flag", nargs="+", default=[], metavar="NAME=VALUE",
+                    help="set module flags of behaviors/collision/contacts.py for the whole run "
+                    "(e.g. SLIDE_APART=1)")
+    ap.add_argument("--slide-global", action="store_true", help="contacts.SLIDE_APART in "
+                    "the global strain step's contact rows too (install_slide_global)")
     args = ap.parse_args(argv)
     extras = [_parse_set(x) for x in args.set]
+    if args.contacts_flag:
+        from lokigraph.behaviors.collision import contacts as C
+
+        for it in args.contacts_flag:
+            name, val = it.split("=", 1)
+            if not hasattr(C, name):
+                ap.error(f"contacts has no {name}")
+            setattr(C, name, yaml.safe_load(val))
+    if args.slide_global:
+        install_slide_global()
     if args.stages:
         stages(args.stages, args.frames, extras)
+    elif args.substages:
+        substages(args.substages, args.frames, extras)
     elif args.fast_exact:
         fast_exact(args.fast_exact, args.frames)
     elif args.passes:
