@@ -464,6 +464,42 @@ def install_slide_global():
     contact_rows.slide_wrapper = True
     SLG.contact_rows = contact_rows
 
+def install_global_self():
+    """Experiment: the global strain step's contact rows ('rows' with pivots) from every
+    contact row, cloth-cloth too, not only those with a kinematic vertex (``_collider_subsets``
+    and ``_contact_set`` wrapped: every row, ``collider_only`` off); each vertex of a row then
+    gets the one-sided plane of its most closed row as a collider's vertex does. Measures
+    whether the CCD's re-projection of the cloth-cloth contacts the step moved the cloth into
+    is what leaves the strain on the moving scene. Measured, not kept (the moving scene, 14
+    frames, SLIDE_APART 1, --slide-global, NUMBA_NUM_THREADS=1): the step diverges where
+    cloth-cloth contacts join it (after the step 86-237 % in frames 8-12, frame ends 4.4-86 %):
+    the two layers' planes, one per vertex, face each other. Nor does the step without pivots
+    pay (``--set strain_limit.global_pivots=0``, whose 'rows' are pair rows of every kind):
+    4,500-8,100 CCD hits in a substep, frame ends 19.7-120 %."""
+    from lokigraph.behaviors.materials import strain_limit_global as SLG
+
+    G = SLG.GlobalStrainStep
+    if getattr(G, "self_rows", False):
+        return
+    cs0 = G._contact_set
+
+    def subsets(self, w, contacts, kinds):
+        out = {}
+        for k in kinds:
+            rows = getattr(contacts, k)
+            one = (contacts.vf_onesided[:len(rows)] if k == "vf"
+                   else np.zeros(len(rows), np.bool_))
+            out[k] = (rows, getattr(contacts, k + "_n")[:len(rows)],
+                      getattr(contacts, k + "_target")[:len(rows)], np.ascontiguousarray(one),
+                      np.zeros(len(rows), np.bool_))
+        return out
+
+    def contact_set(self, p, w, contacts, kinds, margin, collider_only, sub=None):
+        return cs0(self, p, w, contacts, kinds, margin, collider_only and sub is None, sub)
+
+    G._collider_subsets, G._contact_set, G.self_rows = subsets, contact_set, True
+
+
 def _hull_perimeter(P):
     from scipy.spatial import ConvexHull
 
@@ -789,6 +825,8 @@ def main(argv=None):
                     "(e.g. SLIDE_APART=1)")
     ap.add_argument("--slide-global", action="store_true", help="contacts.SLIDE_APART in "
                     "the global strain step's contact rows too (install_slide_global)")
+    ap.add_argument("--global-self", action="store_true", help="experiment: the global "
+                    "step's contact rows from the cloth-cloth contacts too (install_global_self)")
     args = ap.parse_args(argv)
     extras = [_parse_set(x) for x in args.set]
     if args.contacts_flag:
@@ -801,6 +839,8 @@ def main(argv=None):
             setattr(C, name, yaml.safe_load(val))
     if args.slide_global:
         install_slide_global()
+    if args.global_self:
+        install_global_self()
     if args.stages:
         stages(args.stages, args.frames, extras)
     elif args.substages:
