@@ -408,6 +408,134 @@ def substages(name, frames, extras, over=0.05):
         cls.finalize, cls.after_finalize, scls.finalize = fin0, aft0, sfin0
 
 
+def _row_kinds(c, ball_mask):
+    """The packed contact rows by kind against the ball (``ball_mask``: its vertices): vertex-
+    face cloth vertex / ball face, ball vertex / cloth face, cloth / cloth; edge-edge ball /
+    cloth, cloth / cloth. Returns {label: (is_vf, row indices)}."""
+    vf, ee = c.vf, c.ee
+    b = ball_mask
+    return {"vf cloth v / ball face": (True, np.flatnonzero(~b[vf[:, 0]] & b[vf[:, 1]])),
+            "vf ball v / cloth face": (True, np.flatnonzero(b[vf[:, 0]] & ~b[vf[:, 1]])),
+            "vf cloth / cloth": (True, np.flatnonzero(~b[vf[:, 0]] & ~b[vf[:, 1]])),
+            "ee ball / cloth": (False, np.flatnonzero(b[ee[:, 0]] ^ b[ee[:, 2]])),
+            "ee cloth / cloth": (False, np.flatnonzero(~b[ee[:, 0]] & ~b[ee[:, 2]]))}
+
+
+def _kind_pass(c, kinds, q0, x, w, strain):
+    """One contact pass of each kind of rows alone from ``q0`` (copies): rows, active rows, worst
+    strain after, largest move and vertices moved over 1 mm; printed."""
+    from lokigraph.behaviors.collision import contacts as C
+
+    for k, (is_vf, sel) in kinds.items():
+        q = q0.copy()
+        if is_vf:
+            a = C.project_vf(q, x, w, c.vf[sel], c.vf_n[sel], c.vf_target[sel], c.vf_mu[sel],
+                             c.strength[sel], c.damping, c.vf_onesided[sel], C.SLIDE_APART)
+        else:
+            a = C.project_ee(q, x, w, c.ee[sel], c.ee_n[sel], c.ee_target[sel], c.ee_mu[sel],
+                             c.ee_strength[sel], c.damping, C.SLIDE_APART)
+        mv = np.linalg.norm(q - q0, axis=1)
+        print(f"    {k}: {len(sel)} rows, {a} active, worst edge after {100 * strain(q):.1f} %, "
+              f"largest move {1e3 * mv.max():.1f} mm, vertices moved > 1 mm "
+              f"{int((mv > 1e-3).sum())}", flush=True)
+
+
+def row_kinds(name, frames, extras, at):
+    """On a scene with a moving 'ball', in the substeps of the frames ``at``: which contact rows
+    stretch the cloth. After the final rounds (and 10 more strain-limit sweeps, so that only
+    what the contacts do is left): one contact pass of each kind of rows alone. In the CCD safe
+    step: the worst edge after each call (the joint strain-limit and stretch passes, the
+    contacts at the time of impact, the pass over every contact row), the first pass over every
+    row split by kind as above (see the module doc)."""
+    from lokigraph.behaviors.collision import contacts as C
+    from lokigraph.behaviors.materials import strain_limit as SL
+    from lokigraph.behaviors.materials import stretch as ST
+
+    st = {"on": False, "log": [], "first": False}
+
+    def strain(p):
+        d = run.d
+        return float((np.linalg.norm(p[d.idx[:, 1]] - p[d.idx[:, 0]], axis=1) / d.rest).max()
+                     - 1.0)
+
+    def logged(tag, fn, pos):
+        def f(*a, **k):
+            if not st["on"]:
+                return fn(*a, **k)
+            p = a[pos]
+            q = p.copy()
+            out = fn(*a, **k)
+            mv = np.linalg.norm(p - q, axis=1)
+            st["log"].append((tag, strain(p), mv.max(), int((mv > 1e-3).sum())))
+            return out
+        return f
+
+    saved = [(C, "project_vf"), (C, "project_ee"), (C, "_project_contacts"),
+             (C.CollisionConstraint, "finalize"), (C.CollisionConstraint, "after_finalize"),
+             (SL.StrainLimitConstraint, "project_joint"), (ST.StretchConstraint, "project_joint")]
+    saved = [(o, n, getattr(o, n)) for o, n in saved]
+    pc0, fin0, aft0 = C._project_contacts, C.CollisionConstraint.finalize, \
+        C.CollisionConstraint.after_finalize
+
+    def pc(c, p, x, w):
+        on, st["on"] = st["on"], False  # the passes below are not the CCD's own calls
+        try:
+            if on and st["first"]:
+                st["first"] = False
+                print("  the CCD's first pass over every contact row, by kind:")
+                _kind_pass(c, _row_kinds(c, ball_mask), p.copy(), x, w, strain)
+            return pc0(c, p, x, w)
+        finally:
+            st["on"] = on
+
+    def fin(self, ctx, d, p):
+        fin0(self, ctx, d, p)
+        if frame[0] not in at:
+            return
+        c, w = ctx.state.fields["contacts"], ctx.model.particle_inv_mass
+        sl = next(dd for b, dd in ctx.constraints if isinstance(b, SL.StrainLimitConstraint))
+        q0 = p.copy()
+        for _ in range(10):
+            SL.project_strain_limit(q0, w, sl.edges, sl.limit, sl.color_ptr)
+        print(f"frame {frame[0]} substep {ctx.substep + 1}: after the final rounds "
+              f"{100 * strain(p):.1f} %, after 10 more strain-limit sweeps {100 * strain(q0):.1f} "
+              f"%; one contact pass from there, each kind of rows alone:")
+        _kind_pass(c, _row_kinds(c, ball_mask), q0, ctx.state.particle_q, w, strain)
+
+    def aft(self, ctx, d, p):
+        st["on"] = frame[0] in at
+        st["log"], st["first"] = [], True
+        p0 = strain(p)
+        aft0(self, ctx, d, p)
+        if st["on"] and st["log"]:
+            print(f"frame {frame[0]} substep {ctx.substep + 1}: the CCD safe step, worst edge "
+                  f"{100 * p0:.1f} % before; after each call: worst edge % / largest move mm / "
+                  "vertices moved > 1 mm")
+            for tag, e, m, n in st["log"]:
+                print(f"    {tag}: {100 * e:.1f} / {1e3 * m:.1f} / {n}")
+        st["on"] = False
+
+    C.project_vf = logged("contacts at the time of impact (vf)", C.project_vf, 0)
+    C.project_ee = logged("contacts at the time of impact (ee)", C.project_ee, 0)
+    C._project_contacts = logged("every contact row", pc, 1)
+    C.CollisionConstraint.finalize, C.CollisionConstraint.after_finalize = fin, aft
+    for cls, tag in ((SL.StrainLimitConstraint, "strain limit (joint)"),
+                     (ST.StretchConstraint, "stretch (joint)")):
+        cls.project_joint = logged(tag, cls.project_joint, 3)
+    frame = [0]
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            run = _Run("", _variant(_scene_path(name), extras[0] if extras else {}, Path(tmp)))
+            ball_mask = np.zeros(len(run.sim.state.particle_q), np.bool_)
+            ball_mask[_ball(run.sim)] = True
+            for k in range(1, min(frames, max(at)) + 1):
+                frame[0] = k
+                run.step()
+    finally:
+        for o, n, v in saved:
+            setattr(o, n, v)
+
+
 def install_slide_global():
     """``contacts.SLIDE_APART`` in the global strain step's contact rows too: wraps
     ``strain_limit_global.contact_rows`` (read by ``GlobalStrainStep._contact_set`` at call
@@ -812,6 +940,10 @@ def main(argv=None):
                     "each stage (the global step included), the global step's passes and "
                     "where the worst edge is against the moving ball, at the defaults (or "
                     "the first --set)")
+    ap.add_argument("--row-kinds", metavar="SCENE", help="which contact rows stretch the "
+                    "cloth after the final rounds and in the CCD safe step, in the frames --at "
+                    "(a scene with a 'ball')")
+    ap.add_argument("--at", type=int, nargs="+", default=[7, 10], help="--row-kinds' frames")
     ap.add_argument("--passes", metavar="SCENE", help="the global step's passes per frame "
                     "and the excess after each pass, for each --set")
     ap.add_argument("--fast-exact", metavar="SCENE", help="strain_limit_global.FAST_EXACT "
@@ -843,6 +975,8 @@ def main(argv=None):
         install_global_self()
     if args.stages:
         stages(args.stages, args.frames, extras)
+    elif args.row_kinds:
+        row_kinds(args.row_kinds, args.frames, extras, args.at)
     elif args.substages:
         substages(args.substages, args.frames, extras)
     elif args.fast_exact:
