@@ -65,6 +65,30 @@ Where the strain comes from::
 ``--stages``: per frame, the worst edge strain of the substeps after the interleaved
 iterations, after the final collision rounds (joint contact + strain-limit passes), after the
 CCD safe step and at the frame's end, with the contacts still active after the final rounds.
+``--substages SCENE``: per substep, the worst edge after the iterations, the final rounds, the
+global step (where it runs) and the CCD safe step, the global step's passes, the CCD's hits, and
+where the worst edge and the edges over 5 % lie against a moving 'ball' (gap to it, cosine with
+its motion and with up). ``--row-kinds SCENE --at F ...``: in those frames, one contact pass of
+each kind of rows alone after the final rounds (ball / cloth, vertex-face and edge-edge, cloth /
+cloth), and the worst edge after each call inside the CCD safe step. ``--contacts-flag
+NAME=VALUE`` sets a contacts module flag for the run (``SLIDE_APART=1``), ``--slide-global`` makes
+the global step's contact rows follow ``SLIDE_APART`` too (``install_slide_global``: the change
+proposed for strain_limit_global.contact_rows). Measured on cloth_sphere_moving_128 (issue #12,
+NUMBA_NUM_THREADS=1, ``--substages graphs/bench/cloth_sphere_moving_128.yaml --frames 12``): at
+the defaults the final rounds raise the worst edge (frame 7: 57 -> 63 %, 69 -> 77 %; on the
+static drop they lower it, 14 -> 8 %), the global step (last substep only) stops at its 20 passes
+with 7-21 % left, and the CCD takes frames 10-11 from 10.7 / 7.5 % to 34.7 / 86.6 %; neither
+friction (CollisionResponse friction_scale 0) nor self-collision (left out) is the cause, nor
+is the step running every substep (global_every substep: 1.9-26.6 % after it, frames 7-12). ``--row-kinds``
+(frame 7): one pass of the ball-cloth edge-edge rows alone takes the worst edge from 24 to 90 %
+(ball-vertex / cloth-face rows: to 74 %; the others leave it): 252 of the 263 acting rows were
+'crossed' by their start normal's sign while 10 mm apart across it (``contacts.SLIDE_APART``).
+With ``--contacts-flag SLIDE_APART=1 --slide-global``: the final rounds lower the worst edge
+(64 -> 18 %), the global step converges (1.3-3.1 % after it, frames 6-14), frame ends 1.3-3.1 %
+but for frames 10, 11 and 14 (33.6 / 22.7 / 26.5 %, the CCD's contacts; ``--row-kinds --at 10``: the hits at the time of
+impact are cloth-cloth pairs within a quad, 1.5 -> 28 %, and its pass over every row moves 1,132
+vertices, cloth-cloth rows, to 122 %).
+
 ``--passes SCENE``: the global strain-limit step's passes in each frame for each ``--set``
 (interleaved) and the worst relative excess over the limit after each pass::
 
