@@ -95,10 +95,10 @@ _CULL_TOL = 1e-9  # [m] slack over rounding in the cull bound
 #: edge-edge rows acting there were 'crossed' with their cloth point 6.8 mm (median) over the
 #: sphere, 10 mm (median) across n0 from the ball edge, and pushed the cloth up to 7.5 mm along
 #: n0 (50 degrees from the sphere's normal), taking the worst edge from 24 % to 90 %. With 1
-#: (and the global strain step's contact rows skipping those rows too, ``graphs/bench/
-#: cloth_strain.py install_slide_global``, a change not made in strain_limit_global.py yet) one
+#: (and the global strain step's contact rows skipping those rows too,
+#: ``strain_limit_global.contact_rows``, measured as a wrapper before it was built in) one
 #: interleaved run (``NUMBA_NUM_THREADS=1 python graphs/bench/peer_collision.py --moving --loki
-#: 2x15 --frames 12 --newton none --all-flag SLIDE_APART=1 SLIDE_APART=0 --slide-global``):
+#: 2x15 --frames 12 --newton none --all-flag SLIDE_APART=1 SLIDE_APART=0``):
 #: worst frame-end strain of frames 7-11 21.5 / 20.4 / 18.6 / 34.7 / 86.6 % -> 3.1 / 1.4 / 2.2 /
 #: 33.6 / 22.7 % at 0.92x the CPU of frames 2-12 (67.1 s against 72.7 / 72.8 s); the static
 #: cloth_sphere_128 1.9 % (1.3-1.9 % a frame, never above the defaults') at 1.06x (45.8 against

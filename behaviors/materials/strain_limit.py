@@ -462,6 +462,12 @@ class StrainLimitParams(ConstraintParams):
         "run); false = the factorisations before, bitwise. "
         "Setting B's value, a default since stop 29 (false before; "
         "inextensible_max_strain).")
+    global_factor: Literal["superlu", "qdldl"] = Field(
+        "superlu", description="With global_pivots: how the global step factorises its "
+        "systems (symmetric positive definite). 'superlu': SuperLU with a minimum-degree "
+        "ordering of each system (global_fast_lu); 'qdldl': LDL^T with an AMD ordering of "
+        "each system (the qdldl package, sparse_ldl.py). The same systems solved to "
+        "round-off, so results differ in the last digits.")
     global_alpha: float = Field(
         1e-4, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
         "step's system, relative to its diagonal [-]. An inextensible triangle mesh has about "
@@ -541,6 +547,7 @@ class StrainLimitConstraint(ConstraintBehavior):
 
             d.glob = GlobalStrainStep(ctx.model.particle_count, d.edges, d.limit, sel)
             d.glob.set_colors(d.color_ptr)
+            d.glob.ldl = self.params.global_factor == "qdldl"
         if self._pinch_n is not None and not self._painted:
             n = ctx.model.particle_count
             cloth = np.zeros(n, np.bool_)

@@ -81,7 +81,9 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numba import get_num_threads, njit
 
-from .strain_limit import limit_edge, row_geometry
+from .sparse_ldl import LDLFactor
+from ..collision import contacts as _contacts
+from .strain_limit import limit_edge, row_geometry, row_slid_apart
 
 
 @njit(cache=True)
@@ -117,18 +119,23 @@ def edge_rows(p, w, edges, limit, sel, near, tol, out_idx, out_c, out_n):
 
 @njit(cache=True)
 def contact_rows(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf, out_n,
-                 margin=0.0, collider_only=False):
+                 margin=0.0, collider_only=False, slide=0):
     """Contact rows (vertex-face when ``is_vf``, else edge-edge) with C < margin * target or
     flagged in ``keep`` (which they are then added to); with ``collider_only`` only rows with a
     kinematic vertex (w = 0): C [m] (< 0 when violated), the 4 vertices, their coefficients
     and the normal, as ``project_vf`` / ``project_ee`` evaluate them (the closest
-    points and, on the start side, the current closest-point direction). Returns the count."""
+    points and, on the start side, the current closest-point direction); with ``slide``
+    (``contacts.SLIDE_APART``) not the rows slid apart along a collider (``row_slid_apart``),
+    as the contact passes skip them. Returns the count."""
     k = 0
     for r in range(rows.shape[0]):
         i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         if collider_only and w[i0] > 0.0 and w[i1] > 0.0 and w[i2] > 0.0 and w[i3] > 0.0:
             continue
         c0, c1, c2, c3, n0, n1, n2, gap = row_geometry(p, rows, nrm, onesided, is_vf, r)
+        if slide and row_slid_apart(p, w, rows, target, onesided, is_vf, r, c0, c1, c2, c3,
+                                    gap, slide):
+            continue
         C = gap - target[r]
         if C >= margin * target[r] and not keep[r]:
             continue
@@ -299,6 +306,7 @@ class GlobalStrainStep:
         self._planes = None
         self._g_idx = None
         self._Rc = self._sub_pos = self._sub_ind = None
+        self.ldl = False
         # the step's edges grouped by colour (``edges`` comes colour-sorted from the strain
         # limit's bind, ``sel`` ascending): the Gauss-Seidel smoothing sweeps them
         self.s_edges = np.ascontiguousarray(edges[self.sel])
@@ -343,7 +351,7 @@ class GlobalStrainStep:
                 rows, nrm, tgt, one, keep = sub[k]
                 keep[:] = False
             nk = contact_rows(p, w, rows, nrm, tgt, one, k == "vf", keep, cb[0], cb[1], cb[2],
-                              cb[3], margin, collider_only)
+                              cb[3], margin, collider_only, _contacts.SLIDE_APART)
             if nk:
                 cs.append((cb[0][:nk], cb[1][:nk], cb[2][:nk], cb[3][:nk]))
         if not cs:
@@ -446,7 +454,7 @@ class GlobalStrainStep:
         A = (JW @ J.T).tocsr()
         dg = A.diagonal()
         R = (A + sp.diags(alpha * dg + 1e-300)).tocsr()
-        if FAST_EXACT:
+        if FAST_EXACT or self.ldl:
             self._principal_of(R)
         F = C > 0.0
         if F0 is not None:  # warm start: the last pass's active set
@@ -463,7 +471,7 @@ class GlobalStrainStep:
                     dl = self._schur(R, C, base, drop, add, idx)
                     self.stats["updates"] = self.stats.get("updates", 0) + 1
             if dl is None:
-                lu = self._splu(self._principal(idx) if FAST_EXACT else R[idx][:, idx])
+                lu = self._factorise(R, idx)
                 dl = lu.solve(C[idx])
                 if update:
                     pos = np.full(len(C), -1, np.int64)
@@ -484,10 +492,17 @@ class GlobalStrainStep:
             F[inn] = True
         nbad, lu, idx, dl = best
         if lu is None and need_lu:
-            lu = self._splu(self._principal(idx) if FAST_EXACT else R[idx][:, idx])
+            lu = self._factorise(R, idx)
         self.stats["unpivoted"] = max(self.stats.get("unpivoted", 0), nbad)
         rows = idx if ok is None else ok[idx]
         return lu, rows, J[idx], dl
+
+    def _factorise(self, R, idx):
+        """The factor of R[idx][:, idx]: QDLDL's LDL^T with ``ldl`` (strain_limit.
+        global_factor 'qdldl', ``sparse_ldl``), else SuperLU (``_splu``)."""
+        if self.ldl:
+            return LDLFactor(self._principal(idx))
+        return self._splu(self._principal(idx) if FAST_EXACT else R[idx][:, idx])
 
     def _principal_of(self, R):
         """Take R (CSR, symmetric in structure) as the matrix ``_principal`` extracts from: its

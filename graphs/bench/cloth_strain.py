@@ -71,9 +71,9 @@ where the worst edge and the edges over 5 % lie against a moving 'ball' (gap to 
 its motion and with up). ``--row-kinds SCENE --at F ...``: in those frames, one contact pass of
 each kind of rows alone after the final rounds (ball / cloth, vertex-face and edge-edge, cloth /
 cloth), and the worst edge after each call inside the CCD safe step. ``--contacts-flag
-NAME=VALUE`` sets a contacts module flag for the run (``SLIDE_APART=1``), ``--slide-global`` makes
-the global step's contact rows follow ``SLIDE_APART`` too (``install_slide_global``: the change
-proposed for strain_limit_global.contact_rows). Measured on cloth_sphere_moving_128 (issue #12,
+NAME=VALUE`` sets a contacts module flag for the run (``SLIDE_APART=1``; the global step's
+contact rows follow it too, ``strain_limit_global.contact_rows``; helper runs took that change
+as a wrapper, ``--slide-global``, since built in). Measured on cloth_sphere_moving_128 (issue #12,
 NUMBA_NUM_THREADS=1, ``--substages graphs/bench/cloth_sphere_moving_128.yaml --frames 12``): at
 the defaults the final rounds raise the worst edge (frame 7: 57 -> 63 %, 69 -> 77 %; on the
 static drop they lower it, 14 -> 8 %), the global step (last substep only) stops at its 20 passes
@@ -83,7 +83,7 @@ is the step running every substep (global_every substep: 1.9-26.6 % after it, fr
 (frame 7): one pass of the ball-cloth edge-edge rows alone takes the worst edge from 24 to 90 %
 (ball-vertex / cloth-face rows: to 74 %; the others leave it): 252 of the 263 acting rows were
 'crossed' by their start normal's sign while 10 mm apart across it (``contacts.SLIDE_APART``).
-With ``--contacts-flag SLIDE_APART=1 --slide-global``: the final rounds lower the worst edge
+With ``--contacts-flag SLIDE_APART=1``: the final rounds lower the worst edge
 (64 -> 18 %), the global step converges (1.3-3.1 % after it, frames 6-14), frame ends 1.3-3.1 %
 but for frames 10, 11 and 14 (33.6 / 22.7 / 26.5 %, the CCD's contacts; ``--row-kinds --at 10``: the hits at the time of
 impact are cloth-cloth pairs within a quad, 1.5 -> 28 %, and its pass over every row moves 1,132
@@ -560,62 +560,6 @@ def row_kinds(name, frames, extras, at):
             setattr(o, n, v)
 
 
-def install_slide_global():
-    """``contacts.SLIDE_APART`` in the global strain step's contact rows too: wraps
-    ``strain_limit_global.contact_rows`` (read by ``GlobalStrainStep._contact_set`` at call
-    time) so that, while ``SLIDE_APART`` is set, a copy of it runs that skips the rows
-    ``strain_limit.row_slid_apart`` finds slid apart (with it 0: the original, bitwise). The
-    change proposed for strain_limit_global.py, not edited here: ``contact_rows`` takes a
-    ``slide`` argument and skips those rows after ``row_geometry``; ``_contact_set`` passes
-    ``contacts.SLIDE_APART``."""
-    from numba import njit
-
-    from lokigraph.behaviors.collision import contacts as C
-    from lokigraph.behaviors.materials import strain_limit as SL
-    from lokigraph.behaviors.materials import strain_limit_global as SLG
-
-    if getattr(SLG.contact_rows, "slide_wrapper", False):
-        return
-    row_geometry, row_slid_apart = SL.row_geometry, SL.row_slid_apart
-    orig = SLG.contact_rows
-
-    @njit
-    def rows_slide(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf, out_n,
-                   margin, collider_only, mode):
-        k = 0
-        for r in range(rows.shape[0]):
-            i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
-            if collider_only and w[i0] > 0.0 and w[i1] > 0.0 and w[i2] > 0.0 and w[i3] > 0.0:
-                continue
-            c0, c1, c2, c3, n0, n1, n2, gap = row_geometry(p, rows, nrm, onesided, is_vf, r)
-            if row_slid_apart(p, w, rows, target, onesided, is_vf, r, c0, c1, c2, c3, gap,
-                              mode):
-                continue
-            C = gap - target[r]
-            if C >= margin * target[r] and not keep[r]:
-                continue
-            den = c0 * c0 * w[i0] + c1 * c1 * w[i1] + c2 * c2 * w[i2] + c3 * c3 * w[i3]
-            if den <= 0.0:
-                continue
-            keep[r] = True
-            out_c[k] = C
-            out_v[k, 0], out_v[k, 1], out_v[k, 2], out_v[k, 3] = i0, i1, i2, i3
-            out_cf[k, 0], out_cf[k, 1], out_cf[k, 2], out_cf[k, 3] = c0, c1, c2, c3
-            out_n[k, 0], out_n[k, 1], out_n[k, 2] = n0, n1, n2
-            k += 1
-        return k
-
-    def contact_rows(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf,
-                     out_n, margin=0.0, collider_only=False):
-        if not C.SLIDE_APART:
-            return orig(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf,
-                        out_n, margin, collider_only)
-        return rows_slide(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, out_cf,
-                          out_n, float(margin), bool(collider_only), int(C.SLIDE_APART))
-
-    contact_rows.slide_wrapper = True
-    SLG.contact_rows = contact_rows
-
 def install_global_self():
     """Experiment: the global strain step's contact rows ('rows' with pivots) from every
     contact row, cloth-cloth too, not only those with a kinematic vertex (``_collider_subsets``
@@ -623,7 +567,7 @@ def install_global_self():
     gets the one-sided plane of its most closed row as a collider's vertex does. Measures
     whether the CCD's re-projection of the cloth-cloth contacts the step moved the cloth into
     is what leaves the strain on the moving scene. Measured, not kept (the moving scene, 14
-    frames, SLIDE_APART 1, --slide-global, NUMBA_NUM_THREADS=1): the step diverges where
+    frames, SLIDE_APART 1 in the global step too, NUMBA_NUM_THREADS=1): the step diverges where
     cloth-cloth contacts join it (after the step 86-237 % in frames 8-12, frame ends 4.4-86 %):
     the two layers' planes, one per vertex, face each other. Nor does the step without pivots
     pay (``--set strain_limit.global_pivots=0``, whose 'rows' are pair rows of every kind):
@@ -979,8 +923,6 @@ def main(argv=None):
     ap.add_argument("--contacts-flag", nargs="+", default=[], metavar="NAME=VALUE",
                     help="set module flags of behaviors/collision/contacts.py for the whole run "
                     "(e.g. SLIDE_APART=1)")
-    ap.add_argument("--slide-global", action="store_true", help="contacts.SLIDE_APART in "
-                    "the global strain step's contact rows too (install_slide_global)")
     ap.add_argument("--global-self", action="store_true", help="experiment: the global "
                     "step's contact rows from the cloth-cloth contacts too (install_global_self)")
     args = ap.parse_args(argv)
@@ -993,8 +935,6 @@ def main(argv=None):
             if not hasattr(C, name):
                 ap.error(f"contacts has no {name}")
             setattr(C, name, yaml.safe_load(val))
-    if args.slide_global:
-        install_slide_global()
     if args.global_self:
         install_global_self()
     if args.stages:

@@ -924,11 +924,6 @@ def main(argv=None):
                          "(A/B of a flag that must leave the positions unchanged); with "
                          "--sizes: every lokigraph setting again with them, interleaved, "
                          "fitted apart")
-    ap.add_argument("--slide-global", action="store_true",
-                    help="while contacts.SLIDE_APART is set (--all-flag SLIDE_APART=1), the "
-                         "global strain step's contact rows skip the rows slid apart too "
-                         "(cloth_strain.install_slide_global: the change proposed for "
-                         "strain_limit_global.contact_rows)")
     ap.add_argument("--breakdown", action="store_true",
                     help="time the collision functions per frame (detect, project, ccd; "
                          "see install_breakdown) and print a per-frame table")
@@ -993,11 +988,6 @@ def main(argv=None):
             print(f"[peer] {skipped}", flush=True)
 
     all_rows = []
-    if args.slide_global:
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
-        from cloth_strain import install_slide_global
-
-        install_slide_global()
     if args.breakdown:
         install_breakdown()
     if args.moving:
