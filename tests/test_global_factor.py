@@ -46,7 +46,8 @@ def test_qdldl_holds_the_drape(scene_file):
     ex = dict(global_tolerance=0.005, global_smooth=40, global_alpha=1e-4, global_chord=3,
               global_chord_rate=0.8, global_fast_lu=True)
     g0, g1 = [], []
-    s0, d0, pen0 = _drape(scene_file, 20, calls=[], glob=g0, extra=_ex(**ex), **pv)
+    s0, d0, pen0 = _drape(scene_file, 20, calls=[], glob=g0,
+                          extra=_ex(**ex, global_factor="superlu"), **pv)
     s1, d1, pen1 = _drape(scene_file, 20, calls=[], glob=g1,
                           extra=_ex(**ex, global_factor="qdldl"), **pv)
     assert g1[0].ldl and not g0[0].ldl
