@@ -6,7 +6,6 @@ at least its target, is not a crossing. Before (``SLIDE_APART = 0``) such rows o
 the start normal: the final rounds raised the worst edge from 24 % to 90 % in frame 7 (measured
 with ``graphs/bench/cloth_strain.py --substages``)."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +14,7 @@ from lokigraph.api import compile_file
 from lokigraph.behaviors.collision import contacts as C
 from lokigraph.run import Simulation
 
-BENCH = Path(__file__).resolve().parents[1] / "graphs" / "bench"
+from test_collision_moving import _moving_scene
 TARGET = 0.004
 
 
@@ -74,15 +73,6 @@ def test_vertex_face_row_slid_apart_is_inactive_against_a_collider():
     n0 = (-0.5, -1.0, 0.0)
     assert np.abs(_vf(p, w, n0, 0) - np.array(p)).max() > 1e-3
     assert np.array_equal(_vf(p, w, n0, 1), np.array(p))
-
-
-def _moving_scene(scene_file, res, frames):
-    text = (BENCH / "cloth_sphere_moving_128.yaml").read_text()
-    text = text.replace("resolution: [128, 128]", f"resolution: [{res}, {res}]")
-    text = text.replace("frames: {start: 1, end: 24, fps: 24}",
-                        f"frames: {{start: 1, end: {frames}, fps: 24}}")
-    assert f"resolution: [{res}, {res}]" in text and f"end: {frames}," in text
-    return scene_file(text, "moving.yaml")
 
 
 def _after_final_rounds(path, frames, slide, monkeypatch):
