@@ -138,8 +138,12 @@ def test_fast_sphere_does_not_tunnel(scene_file):
         # measured 52 mm before the in-contact defaults of inextensible cloth, 10 mm with them:
         # the 5 %-limited cloth gives less, the ball flattens; largest 397 mm before, 253 mm now)
         assert q[cl.vertex_slice][312, 2] < centre[2]
-        assert _ray_crossings(centre, (0.0, 0.0, -1.0), q[cl.vertex_slice],
-                              cl.geometry.triangles) % 2 == 1
+        n = _ray_crossings(centre, (0.0, 0.0, -1.0), q[cl.vertex_slice], cl.geometry.triangles)
+        # the cloth throws the ball back up and sideways: once its centroid has left the
+        # cloth's footprint the ray meets no cloth (measured: 0.58 m off the centre in y,
+        # 1.85 m up, frame 12, with strain_limit.global_factor qdldl); the ball is then in
+        # front of the cloth when it is above all of it
+        assert n % 2 == 1 or (n == 0 and centre[2] > q[cl.vertex_slice][:, 2].max())
     # the inextensible cloth, pinned at its corners at rest distance, is taut: it stops the ball
     assert np.linalg.norm(sim.state.particle_qd[ball.vertex_slice].mean(0)) < 20.0
     assert centre[2] > 0.0

@@ -463,15 +463,13 @@ class StrainLimitParams(ConstraintParams):
         "Setting B's value, a default since stop 29 (false before; "
         "inextensible_max_strain).")
     global_factor: Literal["superlu", "qdldl"] = Field(
-        "superlu", description="With global_pivots: how the global step factorises its "
+        "qdldl", description="With global_pivots: how the global step factorises its "
         "systems (symmetric positive definite). 'superlu': SuperLU with a minimum-degree "
         "ordering of each system (global_fast_lu); 'qdldl': LDL^T with an AMD ordering of "
         "each system (the qdldl package, sparse_ldl.py): 0.48x SuperLU's CPU per "
         "factorisation at the same fill on the 128 x 128 drop's systems (graphs/bench/"
         "global_factor.py), the frame 0.88x. The same systems solved to round-off. "
-        "Not the default: its round-off alone changes the outcome of tests/test_collisions.py "
-        "test_fast_sphere_does_not_tunnel (a 20 m/s ball on a pinned 24 x 24 cloth at 1 "
-        "substep ends with no cloth along -z from its centroid; stop 30).")
+        "'qdldl' is the default since stop 30 ('superlu' before).")
     global_alpha: float = Field(
         1e-4, ge=0, le=1.0, description="Levenberg-Marquardt regularisation of the global "
         "step's system, relative to its diagonal [-]. An inextensible triangle mesh has about "
