@@ -30,7 +30,6 @@ def test_ldl_solves_as_superlu_does():
     assert np.abs(x1 - x0).max() < 1e-8 * scale
     assert X.shape == B.shape and np.abs(R @ X - B).max() < 1e-9 * np.abs(B).max()
     # a principal submatrix, as the pivots factorise them
-    g._Rc = g._sub_pos = g._sub_ind = None
     g._principal_of(R.tocsr())
     idx = np.flatnonzero(rng.random(n) < 0.6)
     g.ldl = True

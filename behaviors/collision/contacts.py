@@ -69,7 +69,8 @@ from lokigraph.components.collision import Collider, CollisionGroup, CollisionRe
 
 from . import broadphase as bp
 from .narrowphase import (_alloc_ws, _ccd_query, _pt_tri_sq, _seg_seg_sq, _set_coeffs_ee,
-                          _set_coeffs_vf, ee_ccd_batch_kernel, vf_ccd_batch_kernel)
+                          _set_coeffs_vf, ee_ccd_batch_kernel, row_coefficients,
+                          vf_ccd_batch_kernel)
 
 _TOL = 1e-12
 #: detection passes a vertex remembers which side of a kinematic sheet it came from after it
@@ -1621,15 +1622,7 @@ def _ccd_select(rows, nrm, target, is_vf, x, p, frac, sel, dsel):
     k = 0
     for r in range(rows.shape[0]):
         i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
-        if is_vf:
-            d2, b0, b1, b2 = _pt_tri_sq(x[i0, 0], x[i0, 1], x[i0, 2], x[i1, 0], x[i1, 1],
-                                         x[i1, 2], x[i2, 0], x[i2, 1], x[i2, 2], x[i3, 0],
-                                         x[i3, 1], x[i3, 2])
-            c0, c1, c2, c3 = 1.0, -b0, -b1, -b2
-        else:
-            d2, s, t = _seg_seg_sq(x[i0, 0], x[i0, 1], x[i0, 2], x[i1, 0], x[i1, 1], x[i1, 2],
-                                   x[i2, 0], x[i2, 1], x[i2, 2], x[i3, 0], x[i3, 1], x[i3, 2])
-            c0, c1, c2, c3 = 1.0 - s, s, -(1.0 - t), -t
+        d2, c0, c1, c2, c3 = row_coefficients(x, rows, is_vf, r)
         side = 0.0
         for j in range(3):
             side += nrm[r, j] * (c0 * x[i0, j] + c1 * x[i1, j] + c2 * x[i2, j] + c3 * x[i3, j])
@@ -1654,12 +1647,7 @@ def _ccd_select(rows, nrm, target, is_vf, x, p, frac, sel, dsel):
             continue
         # the distance is move-Lipschitz in t from both ends: it stays above
         # (d0 + d1 - move) / 2, with d1 the distance at the end
-        if is_vf:
-            e2 = _pt_tri_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
-                            p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])[0]
-        else:
-            e2 = _seg_seg_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
-                             p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])[0]
+        e2 = row_coefficients(p, rows, is_vf, r)[0]
         if 0.5 * (d0 + np.sqrt(e2) - move) > dd:
             continue
         if is_vf and _translated_clear(x, p, i0, i1, i2, i3, dd):

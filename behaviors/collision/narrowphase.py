@@ -398,6 +398,23 @@ def _seg_seg_sq(p0x, p0y, p0z, p1x, p1y, p1z, q0x, q0y, q0z, q1x, q1y, q1z):
     return best, bs, bt
 
 
+@njit(cache=True, inline="always")
+def row_coefficients(q, rows, is_vf, r):
+    """Contact row r of ``rows`` (vertex-face ``(v, a, b, c)`` when ``is_vf``, else edge-edge
+    ``(a0, a1, b0, b1)``) at positions ``q``: the squared distance of its closest points and
+    the 4 vertices' coefficients of their separation (sum c_k q_k = x_v - x_face, or
+    x_a(s) - x_b(t)). Returns (d2, c0, c1, c2, c3)."""
+    i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
+    if is_vf:
+        d2, b0, b1, b2 = _pt_tri_sq(q[i0, 0], q[i0, 1], q[i0, 2], q[i1, 0], q[i1, 1],
+                                    q[i1, 2], q[i2, 0], q[i2, 1], q[i2, 2], q[i3, 0],
+                                    q[i3, 1], q[i3, 2])
+        return d2, 1.0, -b0, -b1, -b2
+    d2, s, t = _seg_seg_sq(q[i0, 0], q[i0, 1], q[i0, 2], q[i1, 0], q[i1, 1], q[i1, 2],
+                           q[i2, 0], q[i2, 1], q[i2, 2], q[i3, 0], q[i3, 1], q[i3, 2])
+    return d2, 1.0 - s, s, -(1.0 - t), -t
+
+
 @njit(cache=True)
 def point_segment_distance(p, a, b):
     """Distance from point ``p`` (3,) to the closed segment ``ab``; returns ``(dist, t)``,

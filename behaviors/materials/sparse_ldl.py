@@ -14,6 +14,7 @@ time; not kept).
 from __future__ import annotations
 
 import numpy as np
+import qdldl
 
 
 class LDLFactor:
@@ -22,8 +23,6 @@ class LDLFactor:
     as SuperLU's does."""
 
     def __init__(self, M):
-        import qdldl
-
         self.n = M.shape[0]
         self._s = qdldl.Solver(M.tocsc())
 

@@ -24,7 +24,7 @@ from lokigraph.components.materials import DiscreteShell, Rod
 from .. import topology as T
 from ..collision import contacts as _contacts
 from ..collision.contacts import _slid_apart
-from ..collision.narrowphase import _pt_tri_sq, _seg_seg_sq
+from ..collision.narrowphase import row_coefficients
 
 
 @njit(cache=True, inline="always")
@@ -81,18 +81,11 @@ def row_geometry(p, rows, nrm, onesided, is_vf, r):
     """Contact row r (vertex-face when ``is_vf``, else edge-edge) at ``p`` as ``project_vf`` /
     ``project_ee`` evaluate it: the 4 vertices' coefficients of the closest points' separation,
     the normal (the stored one; on its side, and unless one-sided, the current closest-point
-    direction) and the separation along it. Returns (c0, c1, c2, c3, n0, n1, n2, gap)."""
+    direction), the separation along it and the closest points' squared distance. Returns
+    (c0, c1, c2, c3, n0, n1, n2, gap, d2)."""
     i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
     n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
-    if is_vf:
-        d2, b0, b1, b2 = _pt_tri_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1],
-                                    p[i1, 2], p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0],
-                                    p[i3, 1], p[i3, 2])
-        c0, c1, c2, c3 = 1.0, -b0, -b1, -b2
-    else:
-        d2, s, t = _seg_seg_sq(p[i0, 0], p[i0, 1], p[i0, 2], p[i1, 0], p[i1, 1], p[i1, 2],
-                               p[i2, 0], p[i2, 1], p[i2, 2], p[i3, 0], p[i3, 1], p[i3, 2])
-        c0, c1, c2, c3 = 1.0 - s, s, -(1.0 - t), -t
+    d2, c0, c1, c2, c3 = row_coefficients(p, rows, is_vf, r)
     dv0 = c0 * p[i0, 0] + c1 * p[i1, 0] + c2 * p[i2, 0] + c3 * p[i3, 0]
     dv1 = c0 * p[i0, 1] + c1 * p[i1, 1] + c2 * p[i2, 1] + c3 * p[i3, 1]
     dv2 = c0 * p[i0, 2] + c1 * p[i1, 2] + c2 * p[i2, 2] + c3 * p[i3, 2]
@@ -100,23 +93,19 @@ def row_geometry(p, rows, nrm, onesided, is_vf, r):
         dist = np.sqrt(d2)
         if dist > 1e-12 and dv0 * n0 + dv1 * n1 + dv2 * n2 > 0.0:
             n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
-    return c0, c1, c2, c3, n0, n1, n2, dv0 * n0 + dv1 * n1 + dv2 * n2
+    return c0, c1, c2, c3, n0, n1, n2, dv0 * n0 + dv1 * n1 + dv2 * n2, d2
 
 
 @njit(cache=True, inline="always")
-def row_slid_apart(p, w, rows, target, onesided, is_vf, r, c0, c1, c2, c3, gap, mode):
+def row_slid_apart(w, rows, target, onesided, is_vf, r, d2, gap, mode):
     """``contacts.SLIDE_APART`` for contact row r as ``row_geometry`` evaluated it (its
-    coefficients and its separation ``gap`` along the normal): a two-sided row against a
-    collider on the far side of its start normal whose closest points lie at least its target
-    apart across that normal, inactive as ``project_vf`` / ``project_ee`` take it with
-    ``slide`` (``mode``: ``contacts.SLIDE_APART``)."""
+    separation ``gap`` along the normal, its closest points' squared distance ``d2``): a
+    two-sided row against a collider on the far side of its start normal whose closest points
+    lie at least its target apart across that normal, inactive as ``project_vf`` /
+    ``project_ee`` take it with ``slide`` (``mode``: ``contacts.SLIDE_APART``)."""
     if gap > 0.0 or mode == 0 or (is_vf and onesided[r]):
         return False
     i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
-    dv0 = c0 * p[i0, 0] + c1 * p[i1, 0] + c2 * p[i2, 0] + c3 * p[i3, 0]
-    dv1 = c0 * p[i0, 1] + c1 * p[i1, 1] + c2 * p[i2, 1] + c3 * p[i3, 1]
-    dv2 = c0 * p[i0, 2] + c1 * p[i1, 2] + c2 * p[i2, 2] + c3 * p[i3, 2]
-    d2 = dv0 * dv0 + dv1 * dv1 + dv2 * dv2
     if is_vf:
         return _slid_apart(d2, gap, target[r], w[i0], w[i1] + w[i2] + w[i3], mode)
     return _slid_apart(d2, gap, target[r], w[i0] + w[i1], w[i2] + w[i3], mode)
@@ -140,9 +129,9 @@ def count_pinched(p, w, cloth, rows, nrm, target, onesided, is_vf, first, seen, 
         i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         if cloth[i0] and cloth[i1] and cloth[i2] and cloth[i3]:
             continue
-        c0, c1, c2, c3, n0, n1, n2, gap = row_geometry(p, rows, nrm, onesided, is_vf, r)
+        c0, c1, c2, c3, n0, n1, n2, gap, d2 = row_geometry(p, rows, nrm, onesided, is_vf, r)
         if gap >= 2.0 * target[r] or (slide and row_slid_apart(
-                p, w, rows, target, onesided, is_vf, r, c0, c1, c2, c3, gap, slide)):
+                w, rows, target, onesided, is_vf, r, d2, gap, slide)):
             continue
         for q in range(4):
             v = rows[r, q]

@@ -132,9 +132,8 @@ def contact_rows(p, w, rows, nrm, target, onesided, is_vf, keep, out_c, out_v, o
         i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         if collider_only and w[i0] > 0.0 and w[i1] > 0.0 and w[i2] > 0.0 and w[i3] > 0.0:
             continue
-        c0, c1, c2, c3, n0, n1, n2, gap = row_geometry(p, rows, nrm, onesided, is_vf, r)
-        if slide and row_slid_apart(p, w, rows, target, onesided, is_vf, r, c0, c1, c2, c3,
-                                    gap, slide):
+        c0, c1, c2, c3, n0, n1, n2, gap, d2 = row_geometry(p, rows, nrm, onesided, is_vf, r)
+        if slide and row_slid_apart(w, rows, target, onesided, is_vf, r, d2, gap, slide):
             continue
         C = gap - target[r]
         if C >= margin * target[r] and not keep[r]:

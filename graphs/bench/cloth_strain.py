@@ -225,10 +225,13 @@ class _Run:
         st = self.last = self.sim.step_frame()
         self.wall.append(time.perf_counter() - t)
         self.cpu.append(time.process_time() - c)
-        q, d = self.sim.state.particle_q, self.d
-        e = np.linalg.norm(q[d.idx[:, 1]] - q[d.idx[:, 0]], axis=1) / d.rest - 1.0
-        self.worst.append(float(e.max()))
+        self.worst.append(float(self.strain(self.sim.state.particle_q).max()))
         self.pen.append(float(st.get("penetrations", 0) or 0))
+
+    def strain(self, q):
+        """Per stretch edge |e| / rest - 1 at positions ``q``."""
+        d = self.d
+        return np.linalg.norm(q[d.idx[:, 1]] - q[d.idx[:, 0]], axis=1) / d.rest - 1.0
 
     def row(self, scene):
         w = np.array(self.worst)
@@ -312,9 +315,7 @@ def stages(name, frames, extras):
     rec = {}
 
     def strain(p):
-        d = run.d
-        return float((np.linalg.norm(p[d.idx[:, 1]] - p[d.idx[:, 0]], axis=1) / d.rest).max()
-                     - 1.0)
+        return float(run.strain(p).max())
 
     def fin(self, ctx, d, p):
         rec.setdefault("iter", []).append(strain(p))
@@ -364,8 +365,7 @@ def substages(name, frames, extras, over=0.05):
     rec = {}
 
     def strain(p):
-        d = run.d
-        return np.linalg.norm(p[d.idx[:, 1]] - p[d.idx[:, 0]], axis=1) / d.rest - 1.0
+        return run.strain(p)
 
     def fin(self, ctx, d, p):
         rec.clear()
@@ -478,9 +478,7 @@ def row_kinds(name, frames, extras, at):
     st = {"on": False, "log": [], "first": False}
 
     def strain(p):
-        d = run.d
-        return float((np.linalg.norm(p[d.idx[:, 1]] - p[d.idx[:, 0]], axis=1) / d.rest).max()
-                     - 1.0)
+        return float(run.strain(p).max())
 
     def logged(tag, fn, pos):
         def f(*a, **k):

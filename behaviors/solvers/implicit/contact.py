@@ -39,7 +39,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ...collision.narrowphase import _pt_tri_sq, _seg_seg_sq
+from ...collision.narrowphase import row_coefficients
 
 
 @njit(cache=True)
@@ -262,16 +262,7 @@ def safety_project(x, fixed, kinds, centers, dirs, radii, lengths):
 @njit(cache=True, inline="always")
 def _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r):
     """``lag_rows`` for row r; returns 1 where the row is active (C < 0, a free vertex)."""
-    a0, a1, a2, a3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
-    if is_vf:
-        _, b0, b1, b2 = _pt_tri_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1],
-                                   x[a1, 2], x[a2, 0], x[a2, 1], x[a2, 2], x[a3, 0],
-                                   x[a3, 1], x[a3, 2])
-        coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = 1.0, -b0, -b1, -b2
-    else:
-        _, s, t = _seg_seg_sq(x[a0, 0], x[a0, 1], x[a0, 2], x[a1, 0], x[a1, 1], x[a1, 2],
-                              x[a2, 0], x[a2, 1], x[a2, 2], x[a3, 0], x[a3, 1], x[a3, 2])
-        coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = 1.0 - s, s, -(1.0 - t), -t
+    _, coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = row_coefficients(x, rows, is_vf, r)
     mk = 0.0
     for j in range(4):
         a = rows[r, j]
