@@ -99,10 +99,13 @@ BEFORE = {"stretch": {"long_range_levels": 0, "sweeps": 1, "inextensible_compres
 LONG_RANGE = {"stretch": {"long_range_levels": 5, "sweeps": 3, "inextensible_compression": None,
                           "joint_long_range": False},
               "strain_limit": {"inextensible_max_strain": None}}
+#: the in-contact settings of stop 27 (before the global step), with their two final collision
+#: rounds (one since stop 31: with one, sleeve_elbow's joint passes leave 17.8 % by frame 12)
 IN_CONTACT = {**LONG_RANGE, "strain_limit": {"inextensible_max_strain": 0.05,
                                              "inextensible_joint_iterations": 10,
                                              "global_passes": 0,
-                                             "inextensible_pinch_iterations": None}}
+                                             "inextensible_pinch_iterations": None},
+              "collisions": {"final_rounds": 2}}
 #: that with the edges near contacts compliant in compression (stretch.inextensible_compression)
 IN_CONTACT_SOFT = {**IN_CONTACT, "stretch": {**LONG_RANGE["stretch"],
                                              "inextensible_compression": 10.0}}
@@ -334,7 +337,8 @@ def test_sleeve_elbow_joint_long_range(tmp_path):
     assert base.max() < 0.13, base
     tight = {"stretch": {**LONG_RANGE["stretch"], "joint_long_range": True},
              "strain_limit": {"inextensible_max_strain": 0.02,
-                              "inextensible_joint_iterations": 40, "global_passes": 0}}
+                              "inextensible_joint_iterations": 40, "global_passes": 0},
+             "collisions": IN_CONTACT["collisions"]}  # one final round: 3.6 % (measured)
     worst, _, _, _ = _strain_run(EX / "sleeve_elbow.yaml", 12, tight, tmp_path)
     assert worst.max() < 0.03, worst
 

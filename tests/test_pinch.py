@@ -42,9 +42,13 @@ def pinch_run(tmp_path, text, name, frames):
     return {k: np.array(v) if isinstance(v, list) else v for k, v in out.items()}
 
 
-#: the cloth settings before the in-contact defaults of inextensible cloth (issue #13)
+#: the cloth settings before the in-contact defaults of inextensible cloth (issue #13), and the
+#: two final collision rounds before stop 31 (with one the lid's recession at 2 and 8 substeps
+#: differs by up to 1.15 mm in frame 25, measured: the cloth's resistance, not the lid's
+#: compliance, which is this file's subject)
 BEFORE = ("graph_overrides: {stretch: {long_range_levels: 0, sweeps: 1, "
-          "inextensible_compression: null}, strain_limit: {inextensible_max_strain: null}}\n")
+          "inextensible_compression: null}, strain_limit: {inextensible_max_strain: null}, "
+          "collisions: {final_rounds: 2}}\n")
 
 
 def _pinch(tmp_path, mechanisms=True, substeps=4, frames=60, before=False):
