@@ -111,6 +111,12 @@ _CULL_TOL = 1e-9  # [m] slack over rounding in the cull bound
 #: Not the default: with 1 the slow sleeve_elbow tests' near-joint speed went 0.638 / 0.671
 #: -> 0.738 / 0.781 m/s against their bound 0.733 (stop 30, tests/test_elbow.py).
 SLIDE_APART = 0
+#: ``SLIDE_APART`` 3 (candidate): a collider row is slid apart only where the collider side's
+#: own motion over the substep across the start normal is at least this times the row's target
+SLIDE_MOTION = 1.0
+#: ``SLIDE_APART`` 4 (candidate): a collider row is slid apart where its closest points lie at
+#: least this times its target apart across the start normal
+SLIDE_LATERAL = 2.5
 #: with ``SLIDE_APART``, the CCD safe step's contacts at the time of impact too
 CCD_SLIDE = True
 #: space-time boxes (``broadphase.spacetime_boxes``) for the self pairs of every element, and no
@@ -1377,9 +1383,32 @@ def _slid_apart(d2, dn, tgt, wa, wb, mode):
     """A two-sided row on the far side of n0 (``dn`` = separation . n0 <= 0) whose primitives'
     closest points (squared distance ``d2``) lie at least its target ``tgt`` apart across n0,
     with ``mode`` 1 only where one primitive is immovable (summed inverse masses ``wa`` or
-    ``wb`` zero), with 2 any: slid past each other, not crossed (``SLIDE_APART``)."""
-    return ((mode >= 2 or wa <= 0.0 or wb <= 0.0) and mode >= 1
+    ``wb`` zero), with 2 any: slid past each other, not crossed (``SLIDE_APART``). Mode 3:
+    as 1 here (its motion test, ``_moved_across``, where the kernel has the substep's start
+    positions); 4: as 1 at ``SLIDE_LATERAL`` times the target; 5: never here (the contact
+    passes), as 1 in the global strain step's rows and the pinch count (``row_slid_apart``)."""
+    if mode == 5:
+        return False
+    if mode == 4:
+        k = SLIDE_LATERAL * tgt
+        return (wa <= 0.0 or wb <= 0.0) and d2 - dn * dn >= k * k
+    return ((mode == 2 or wa <= 0.0 or wb <= 0.0) and mode >= 1
             and d2 - dn * dn >= tgt * tgt)
+
+
+@njit(cache=True, inline="always")
+def _moved_across(p, x, i, j, k, ci, cj, ck, n0, n1, n2, tgt):
+    """``SLIDE_APART`` 3: the row's immovable side (vertices i, j, k with the closest point's
+    coefficients ci, cj, ck; a vertex repeated with coefficient 0 where it has fewer) moved
+    over the substep (x -> p: its animation) at least ``SLIDE_MOTION`` times the target
+    ``tgt`` across the start normal n: it carried itself past the other primitive, which a
+    row whose normal was taken at the substep's start cannot tell from a crossing."""
+    m0 = ci * (p[i, 0] - x[i, 0]) + cj * (p[j, 0] - x[j, 0]) + ck * (p[k, 0] - x[k, 0])
+    m1 = ci * (p[i, 1] - x[i, 1]) + cj * (p[j, 1] - x[j, 1]) + ck * (p[k, 1] - x[k, 1])
+    m2 = ci * (p[i, 2] - x[i, 2]) + cj * (p[j, 2] - x[j, 2]) + ck * (p[k, 2] - x[k, 2])
+    mn = m0 * n0 + m1 * n1 + m2 * n2
+    lim = SLIDE_MOTION * tgt
+    return m0 * m0 + m1 * m1 + m2 * m2 - mn * mn >= lim * lim
 
 
 @njit(cache=True)
@@ -1446,7 +1475,13 @@ def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
             if dist > 1e-12 and dn > 0.0:
                 n0, n1, n2 = dx / dist, dy / dist, dz / dist
             elif slide and _slid_apart(d2, dn, target[r], w[v], w[a] + w[b] + w[c], slide):
-                continue
+                if slide != 3:
+                    continue
+                if w[v] <= 0.0:
+                    if _moved_across(p, x, v, v, v, 1.0, 0.0, 0.0, n0, n1, n2, target[r]):
+                        continue
+                elif _moved_across(p, x, a, b, c, b0, b1, b2, n0, n1, n2, target[r]):
+                    continue
         gap = dx * n0 + dy * n1 + dz * n2
         C = gap - target[r]
         if C >= 0.0:
@@ -1535,7 +1570,13 @@ def _project_ee_sel(p, x, w, rows, nrm, target, mu, strength, damping, sel, nsel
             # same side as at the start: follow the current geometry
             n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
         elif slide and _slid_apart(d2, dn, target[r], w[a0] + w[a1], w[b0] + w[b1], slide):
-            continue
+            if slide != 3:
+                continue
+            if w[a0] + w[a1] <= 0.0:
+                if _moved_across(p, x, a0, a1, a1, ca, cb, 0.0, n0, n1, n2, target[r]):
+                    continue
+            elif _moved_across(p, x, b0, b1, b1, -cc, -cd, 0.0, n0, n1, n2, target[r]):
+                continue
         g = dv0 * n0 + dv1 * n1 + dv2 * n2
         C = g - target[r]
         if C >= 0.0:

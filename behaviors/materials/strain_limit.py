@@ -117,6 +117,8 @@ def row_slid_apart(w, rows, target, onesided, is_vf, r, d2, gap, mode):
     ``project_ee`` take it with ``slide`` (``mode``: ``contacts.SLIDE_APART``)."""
     if gap > 0.0 or mode == 0 or (is_vf and onesided[r]):
         return False
+    if mode == 5:  # the contact passes keep these rows; the global step and pinch count not
+        mode = 1
     i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
     if is_vf:
         return _slid_apart(d2, gap, target[r], w[i0], w[i1] + w[i2] + w[i3], mode)
