@@ -109,14 +109,34 @@ _CULL_TOL = 1e-9  # [m] slack over rounding in the cull bound
 #: global step moved the cloth into; ``cloth_strain.py --row-kinds``). Opt-in: results change
 #: wherever a collider's rows slide (the static drop's too).
 #: Not the default: with 1 the slow sleeve_elbow tests' near-joint speed went 0.638 / 0.671
-#: -> 0.738 / 0.781 m/s against their bound 0.733 (stop 30, tests/test_elbow.py).
+#: -> 0.738 / 0.781 m/s against their bound 0.733 (stop 30, tests/test_elbow.py; stop 31:
+#: 0.585 / 0.776 m/s against 0.596 / 0.638 with 0, test_sleeve_elbow_with_mechanisms /
+#: _compression_near_contacts' 14-iteration run). Why (``graphs/bench/elbow_slide.py``, stop 31):
+#: with 1 the contact passes skip 2-102 distinct rows a frame in frames 22-36, edge-edge rows
+#: (80 %) against the unpainted forearm (a few against the upper arm), 4.0-8.2 mm across n0
+#: (target 4 mm), 0-4.8 mm behind it, the forearm moving 0.8-1.6 mm a substep there (up to
+#: 4.8 mm in frame 26, the reversal); the
+#: sleeve's positions part from those of 0 from frame 23 (1.1 mm) to 10-16 mm by frames 32-37,
+#: and the frame-end speed peak (frame 35, 0.776 against 0.638 m/s) is a vertex of no skipped
+#: row (of the 10 vertices moved most against 0 in each frame, 0-1 are): a perturbation that
+#: the crease's unsettled Gauss-Seidel fight turns into a different frame-end residue (the
+#: iteration count alone moves it by as much, test_elbow), not cloth let go by the crease.
+#: Only the contact passes matter there: with 1 but 0 in the passes the positions are bitwise
+#: those of 0; with 1 but 0 in the pinch count, the CCD and the global step, those of 1.
+#: 3: rows slid apart along a collider stay active in the contact passes (and the CCD), as
+#: with 0; the global strain step's contact rows (``strain_limit_global.contact_rows``) and
+#: the pinch count (``strain_limit.count_pinched``) skip them, as with 1 (``row_slid_apart``).
+#: Measured (stop 31, at the defaults of 520cfbc): sleeve_elbow positions bitwise those of 0
+#: over the 60 frames at 14 and 15 iterations; cloth_sphere_moving_128 (2x15) worst edge after
+#: the global step of frames 7 / 8 / 9 17.78 / 20.12 / 3.73 % (0), 3.18 / 1.65 / 2.19 (1),
+#: 2.72 / 1.61 / 1.67 (3): the global step, not the passes, gives the frame-end figure (after
+#: the final rounds 97 / 63 / 76 % with 3, 31 / 16 / 19 % with 1). At frame 9 the CCD safe step
+#: then takes it to 3.73 (0), 47.7 (1), 52.9 % (3): the open CCD problem above, in every
+#: setting that skips rows. Rejected candidates (same runs): the passes skipping a slid row only
+#: where the collider's own motion over the substep across n0 is at least the target (elbow
+#: bitwise 0; ball 3.79 / 1.87 / 2.24 after the global step, the final rounds worse than 0),
+#: or where the lateral distance is at least 2.5 targets (elbow bitwise 0; 2.95 / 1.82 / 1.66).
 SLIDE_APART = 0
-#: ``SLIDE_APART`` 3 (candidate): a collider row is slid apart only where the collider side's
-#: own motion over the substep across the start normal is at least this times the row's target
-SLIDE_MOTION = 1.0
-#: ``SLIDE_APART`` 4 (candidate): a collider row is slid apart where its closest points lie at
-#: least this times its target apart across the start normal
-SLIDE_LATERAL = 2.5
 #: with ``SLIDE_APART``, the CCD safe step's contacts at the time of impact too
 CCD_SLIDE = True
 #: space-time boxes (``broadphase.spacetime_boxes``) for the self pairs of every element, and no
@@ -1383,32 +1403,10 @@ def _slid_apart(d2, dn, tgt, wa, wb, mode):
     """A two-sided row on the far side of n0 (``dn`` = separation . n0 <= 0) whose primitives'
     closest points (squared distance ``d2``) lie at least its target ``tgt`` apart across n0,
     with ``mode`` 1 only where one primitive is immovable (summed inverse masses ``wa`` or
-    ``wb`` zero), with 2 any: slid past each other, not crossed (``SLIDE_APART``). Mode 3:
-    as 1 here (its motion test, ``_moved_across``, where the kernel has the substep's start
-    positions); 4: as 1 at ``SLIDE_LATERAL`` times the target; 5: never here (the contact
-    passes), as 1 in the global strain step's rows and the pinch count (``row_slid_apart``)."""
-    if mode == 5:
-        return False
-    if mode == 4:
-        k = SLIDE_LATERAL * tgt
-        return (wa <= 0.0 or wb <= 0.0) and d2 - dn * dn >= k * k
-    return ((mode == 2 or wa <= 0.0 or wb <= 0.0) and mode >= 1
+    ``wb`` zero), with 2 any: slid past each other, not crossed (``SLIDE_APART``). With 3 never
+    (the contact passes keep the row; ``row_slid_apart`` takes 3 as 1)."""
+    return ((mode == 2 or wa <= 0.0 or wb <= 0.0) and mode >= 1 and mode != 3
             and d2 - dn * dn >= tgt * tgt)
-
-
-@njit(cache=True, inline="always")
-def _moved_across(p, x, i, j, k, ci, cj, ck, n0, n1, n2, tgt):
-    """``SLIDE_APART`` 3: the row's immovable side (vertices i, j, k with the closest point's
-    coefficients ci, cj, ck; a vertex repeated with coefficient 0 where it has fewer) moved
-    over the substep (x -> p: its animation) at least ``SLIDE_MOTION`` times the target
-    ``tgt`` across the start normal n: it carried itself past the other primitive, which a
-    row whose normal was taken at the substep's start cannot tell from a crossing."""
-    m0 = ci * (p[i, 0] - x[i, 0]) + cj * (p[j, 0] - x[j, 0]) + ck * (p[k, 0] - x[k, 0])
-    m1 = ci * (p[i, 1] - x[i, 1]) + cj * (p[j, 1] - x[j, 1]) + ck * (p[k, 1] - x[k, 1])
-    m2 = ci * (p[i, 2] - x[i, 2]) + cj * (p[j, 2] - x[j, 2]) + ck * (p[k, 2] - x[k, 2])
-    mn = m0 * n0 + m1 * n1 + m2 * n2
-    lim = SLIDE_MOTION * tgt
-    return m0 * m0 + m1 * m1 + m2 * m2 - mn * mn >= lim * lim
 
 
 @njit(cache=True)
@@ -1475,13 +1473,7 @@ def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
             if dist > 1e-12 and dn > 0.0:
                 n0, n1, n2 = dx / dist, dy / dist, dz / dist
             elif slide and _slid_apart(d2, dn, target[r], w[v], w[a] + w[b] + w[c], slide):
-                if slide != 3:
-                    continue
-                if w[v] <= 0.0:
-                    if _moved_across(p, x, v, v, v, 1.0, 0.0, 0.0, n0, n1, n2, target[r]):
-                        continue
-                elif _moved_across(p, x, a, b, c, b0, b1, b2, n0, n1, n2, target[r]):
-                    continue
+                continue
         gap = dx * n0 + dy * n1 + dz * n2
         C = gap - target[r]
         if C >= 0.0:
@@ -1570,13 +1562,7 @@ def _project_ee_sel(p, x, w, rows, nrm, target, mu, strength, damping, sel, nsel
             # same side as at the start: follow the current geometry
             n0, n1, n2 = dv0 / dist, dv1 / dist, dv2 / dist
         elif slide and _slid_apart(d2, dn, target[r], w[a0] + w[a1], w[b0] + w[b1], slide):
-            if slide != 3:
-                continue
-            if w[a0] + w[a1] <= 0.0:
-                if _moved_across(p, x, a0, a1, a1, ca, cb, 0.0, n0, n1, n2, target[r]):
-                    continue
-            elif _moved_across(p, x, b0, b1, b1, -cc, -cd, 0.0, n0, n1, n2, target[r]):
-                continue
+            continue
         g = dv0 * n0 + dv1 * n1 + dv2 * n2
         C = g - target[r]
         if C >= 0.0:

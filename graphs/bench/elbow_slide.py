@@ -11,13 +11,30 @@ distinct rows per frame, by kind (vertex-face / edge-edge) and by the collider e
 immovable side (w = 0); their lateral distance across the start normal and the depth across
 it; and whether the fastest near-joint vertex of the frame is a vertex of a deactivated row.
 
-Settings: ``S`` = ``contacts.SLIDE_APART`` value (``1``), optionally ``S:SITE,...`` with the
+Settings: ``S`` = ``contacts.SLIDE_APART`` value (0-3), optionally ``S:SITE,...`` with the
 flag forced to 0 at the named sites (ablation): ``pass`` (the contact passes), ``ccd``
 (``CCD_SLIDE``), ``pinch`` (``strain_limit.count_pinched``), ``global`` (the global strain
 step's ``contact_rows``); ``NAME=VALUE`` parts after ``/`` set other contacts module globals::
 
     NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/elbow_slide.py 0 1 1:pinch 1:pass
     NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/elbow_slide.py 0 1 --iterations 14
+
+``--diff``: per frame, each setting's sleeve against the first setting's (largest displacement,
+how many of the 10 most displaced vertices belong to that frame's slid rows, those vertices'
+speeds in both runs). ``--moving``: the same census on cloth_sphere_moving_128 (2x15; the
+metric is then the worst edge strain at the frame end; its frame labels are one more than
+peer_collision.py's). The census flags rows by the test of ``SLIDE_APART`` 1 whatever the
+setting (with ``--census-all`` in runs at 0 too).
+
+Measured (stop 31, NUMBA_NUM_THREADS=1, ``0 1 1:pass 1:pinch,ccd,global --iterations 14`` and
+``0 3 1 --iterations 14 --diff``): near-joint maximum 0.638 m/s (frame 35) with 0, 0.776 (35)
+with 1, 0.638 with 1 but 0 in the passes (bitwise 0), 0.776 with 1 but 0 at the other sites;
+with 1 the passes skip 3-102 distinct rows a frame in frames 22-36 (81 % edge-edge, against
+the forearm but for a few against the upper arm; 4.0-8.2 mm across n0, target 4 mm; 0-4.8 mm
+behind it; the forearm moving 0.8-1.6 mm a substep there, 4.8 mm at most in frame 26); the
+sleeve parts from the run with 0 from frame 23 (1.1 mm, 10-16 mm by frames 32-37), 0-1 of the
+10 most displaced vertices a frame are vertices of skipped rows, the frame-35 peak vertex (306)
+is of none. With 3 every frame is bitwise that of 0 (14 and 15 iterations).
 
 The row census costs a numba pass over every row at each contact pass (diagnostic only;
 ``--no-census`` for timings).
