@@ -123,19 +123,27 @@ _CULL_TOL = 1e-9  # [m] slack over rounding in the cull bound
 #: iteration count alone moves it by as much, test_elbow), not cloth let go by the crease.
 #: Only the contact passes matter there: with 1 but 0 in the passes the positions are bitwise
 #: those of 0; with 1 but 0 in the pinch count, the CCD and the global step, those of 1.
-#: 3: rows slid apart along a collider stay active in the contact passes (and the CCD), as
-#: with 0; the global strain step's contact rows (``strain_limit_global.contact_rows``) and
-#: the pinch count (``strain_limit.count_pinched``) skip them, as with 1 (``row_slid_apart``).
-#: Measured (stop 31, at the defaults of 520cfbc): sleeve_elbow positions bitwise those of 0
-#: over the 60 frames at 14 and 15 iterations; cloth_sphere_moving_128 (2x15) worst edge after
-#: the global step of frames 7 / 8 / 9 17.78 / 20.12 / 3.73 % (0), 3.18 / 1.65 / 2.19 (1),
-#: 2.72 / 1.61 / 1.67 (3): the global step, not the passes, gives the frame-end figure (after
-#: the final rounds 97 / 63 / 76 % with 3, 31 / 16 / 19 % with 1). At frame 9 the CCD safe step
-#: then takes it to 3.73 (0), 47.7 (1), 52.9 % (3): the open CCD problem above, in every
-#: setting that skips rows. Rejected candidates (same runs): the passes skipping a slid row only
-#: where the collider's own motion over the substep across n0 is at least the target (elbow
-#: bitwise 0; ball 3.79 / 1.87 / 2.24 after the global step, the final rounds worse than 0),
-#: or where the lateral distance is at least 2.5 targets (elbow bitwise 0; 2.95 / 1.82 / 1.66).
+#: 3: rows slid apart along a collider stay active in the contact passes of the solver
+#: iterations and the final rounds, as with 0; the global strain step's contact rows
+#: (``strain_limit_global.contact_rows``), the pinch count (``strain_limit.count_pinched``) and
+#: the CCD safe step (its contacts at the time of impact and its passes over every row) skip
+#: them, as with 1 (``row_slid_apart``). Measured (stop 31, at the defaults of 520cfbc):
+#: sleeve_elbow positions bitwise those of 0 over the 60 frames at 14 and 15 iterations;
+#: cloth_sphere_moving_128 (2x15, ``graphs/bench/cloth_strain.py --substages ... --frames 12
+#: --contacts-flag SLIDE_APART=N``) worst edge at the end of frames 7-12:
+#: 0: 17.8 / 20.1 / 3.7 / 16.6 / 27.1 / 12.6 %; 1: 3.2 / 1.6 / 47.7 / 62.8 / 12.4 / 1.5 %;
+#: 3: 2.7 / 1.6 / 14.1 / 17.0 / 11.6 / 1.4 % (``peer_collision.py --moving --loki 2x15 --frames
+#: 12 --newton none --all-flag SLIDE_APART=3``: 0.96x the CPU of frames 2-12; the static drop
+#: 1.9 % at 1.04x; 0 intersecting pairs, 0 vertices inside). After the global step 1.4-2.7 % a frame
+#: with 3 (the global step, not the passes, gives it: after the final rounds 97 / 63 % in
+#: frames 7 / 8 with 3, 31 / 16 % with 1); frames 9-11 are the CCD safe step's. Keeping the
+#: slid rows in the safe step too (the global step and the pinch count only) took frames 9-11
+#: to 52.9 / 39.3 / 49.3 %: its pass over every row pushed the cloth back along them (ball-cloth
+#: edge-edge rows alone 233 %, ``cloth_strain.py --row-kinds --at 9``). Also rejected (elbow
+#: bitwise 0 as well, the ball no better after the global step): the passes skipping a slid row
+#: only where the collider's own motion over the substep across n0 is at least the target
+#: (3.79 / 1.87 / 2.24 % in frames 7-9), or where the lateral distance is at least 2.5 targets
+#: (2.95 / 1.82 / 1.66 %).
 SLIDE_APART = 0
 #: with ``SLIDE_APART``, the CCD safe step's contacts at the time of impact too
 CCD_SLIDE = True
@@ -926,10 +934,11 @@ def _cull_rows(rows, nrm, target, ref, is_vf, lim, sel, lb):
     return k
 
 
-def _project_contacts(c, p, x, w) -> int:
-    """One Gauss-Seidel pass over all packed contacts; returns the number of active ones."""
+def _project_contacts(c, p, x, w, slide=None) -> int:
+    """One Gauss-Seidel pass over all packed contacts; returns the number of active ones.
+    ``slide``: the ``SLIDE_APART`` mode of this pass (None: ``SLIDE_APART``)."""
     a = 0
-    sl = SLIDE_APART
+    sl = SLIDE_APART if slide is None else slide
     b = c.cull_b
     if b < 0.0 or c.cull_ref is None:
         if len(c.vf):
@@ -1404,8 +1413,9 @@ def _slid_apart(d2, dn, tgt, wa, wb, mode):
     closest points (squared distance ``d2``) lie at least its target ``tgt`` apart across n0,
     with ``mode`` 1 only where one primitive is immovable (summed inverse masses ``wa`` or
     ``wb`` zero), with 2 any: slid past each other, not crossed (``SLIDE_APART``). With 3 never
-    (the contact passes keep the row; ``row_slid_apart`` takes 3 as 1)."""
-    return ((mode == 2 or wa <= 0.0 or wb <= 0.0) and mode >= 1 and mode != 3
+    (the contact passes of the iterations and final rounds keep the row; the CCD safe step
+    and ``row_slid_apart`` take 3 as 1)."""
+    return ((mode == 2 or wa <= 0.0 or wb <= 0.0) and (mode == 1 or mode == 2)
             and d2 - dn * dn >= tgt * tgt)
 
 
@@ -2446,6 +2456,7 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
         he = _ccd_hits(work, c.ee, c.ee_n, c.ee_target, False, x, p, frac)
         return hv, he
 
+    sl_ccd = 1 if SLIDE_APART == 3 else SLIDE_APART  # 3: the safe step skips slid rows
     cover = _rows_cover(c, x, p, frac)
     if not cover and CCD_INCREMENTAL > 0.0 and _ccd_incremental(c, work, x, p, v, h, frac):
         st["ccd_incremental"] = st.get("ccd_incremental", 0) + 1
@@ -2462,11 +2473,11 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
                 joint_step(p)
             if cv is not None:
                 project_vf(p, x, w, cv[0], cv[1], cv[2], cv[3], cv[4], c.damping, cv[5],
-                           SLIDE_APART if CCD_SLIDE else 0)
+                           sl_ccd if CCD_SLIDE else 0)
             if ce is not None:
                 project_ee(p, x, w, ce[0], ce[1], ce[2], ce[3], ce[4], c.damping,
-                           SLIDE_APART if CCD_SLIDE else 0)
-            _project_contacts(c, p, x, w)
+                           sl_ccd if CCD_SLIDE else 0)
+            _project_contacts(c, p, x, w, sl_ccd)
         hv, he = hits()
     if not len(hv[0]) and not len(he[0]):
         return st

@@ -115,7 +115,7 @@ def row_slid_apart(w, rows, target, onesided, is_vf, r, d2, gap, mode):
     two-sided row against a collider on the far side of its start normal whose closest points
     lie at least its target apart across that normal, inactive as ``project_vf`` /
     ``project_ee`` take it with ``slide`` (``mode``: ``contacts.SLIDE_APART``; 3 as 1, though
-    the contact passes keep such rows with 3)."""
+    the contact passes of the iterations and final rounds keep such rows with 3)."""
     if gap > 0.0 or mode == 0 or (is_vf and onesided[r]):
         return False
     if mode == 3:  # the contact passes keep these rows; the global step and pinch count not

@@ -244,17 +244,17 @@ _state = {"off": set(), "pinch": 0}
 def install(census):
     orig_pc = C._project_contacts
 
-    def project_contacts(c, p, x, w):
+    def project_contacts(c, p, x, w, slide=None):
         if census is not None:
             census(c, p, x, w)
         if "pass" in _state["off"]:
             s = C.SLIDE_APART
             C.SLIDE_APART = 0
             try:
-                return orig_pc(c, p, x, w)
+                return orig_pc(c, p, x, w, 0)
             finally:
                 C.SLIDE_APART = s
-        return orig_pc(c, p, x, w)
+        return orig_pc(c, p, x, w, slide)
 
     C._project_contacts = project_contacts
     orig_cp = SL.count_pinched
