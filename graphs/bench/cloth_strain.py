@@ -445,19 +445,21 @@ def _row_kinds(c, ball_mask):
             "ee cloth / cloth": (False, np.flatnonzero(~b[ee[:, 0]] & ~b[ee[:, 2]]))}
 
 
-def _kind_pass(c, kinds, q0, x, w, strain):
+def _kind_pass(c, kinds, q0, x, w, strain, slide=None):
     """One contact pass of each kind of rows alone from ``q0`` (copies): rows, active rows, worst
-    strain after, largest move and vertices moved over 1 mm; printed."""
+    strain after, largest move and vertices moved over 1 mm; printed. ``slide``: the pass's
+    ``SLIDE_APART`` mode (None: ``contacts.SLIDE_APART``)."""
     from lokigraph.behaviors.collision import contacts as C
 
+    sl = C.SLIDE_APART if slide is None else slide
     for k, (is_vf, sel) in kinds.items():
         q = q0.copy()
         if is_vf:
             a = C.project_vf(q, x, w, c.vf[sel], c.vf_n[sel], c.vf_target[sel], c.vf_mu[sel],
-                             c.strength[sel], c.damping, c.vf_onesided[sel], C.SLIDE_APART)
+                             c.strength[sel], c.damping, c.vf_onesided[sel], sl)
         else:
             a = C.project_ee(q, x, w, c.ee[sel], c.ee_n[sel], c.ee_target[sel], c.ee_mu[sel],
-                             c.ee_strength[sel], c.damping, C.SLIDE_APART)
+                             c.ee_strength[sel], c.damping, sl)
         mv = np.linalg.norm(q - q0, axis=1)
         print(f"    {k}: {len(sel)} rows, {a} active, worst edge after {100 * strain(q):.1f} %, "
               f"largest move {1e3 * mv.max():.1f} mm, vertices moved > 1 mm "
@@ -499,14 +501,14 @@ def row_kinds(name, frames, extras, at):
     pc0, fin0, aft0 = C._project_contacts, C.CollisionConstraint.finalize, \
         C.CollisionConstraint.after_finalize
 
-    def pc(c, p, x, w):
+    def pc(c, p, x, w, slide=None):
         on, st["on"] = st["on"], False  # the passes below are not the CCD's own calls
         try:
             if on and st["first"]:
                 st["first"] = False
                 print("  the CCD's first pass over every contact row, by kind:")
-                _kind_pass(c, _row_kinds(c, ball_mask), p.copy(), x, w, strain)
-            return pc0(c, p, x, w)
+                _kind_pass(c, _row_kinds(c, ball_mask), p.copy(), x, w, strain, slide)
+            return pc0(c, p, x, w, slide)
         finally:
             st["on"] = on
 
