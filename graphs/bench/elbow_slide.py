@@ -34,7 +34,11 @@ the forearm but for a few against the upper arm; 4.0-8.2 mm across n0, target 4 
 behind it; the forearm moving 0.8-1.6 mm a substep there, 4.8 mm at most in frame 26); the
 sleeve parts from the run with 0 from frame 23 (1.1 mm, 10-16 mm by frames 32-37), 0-1 of the
 10 most displaced vertices a frame are vertices of skipped rows, the frame-35 peak vertex (306)
-is of none. With 3 every frame is bitwise that of 0 (14 and 15 iterations).
+is of none. With 3 every frame is bitwise that of 0 (14 and 15 iterations). ``0 3 3:global
+3:pinch 1 --without --no-census`` (test_sleeve_elbow_without_mechanisms' scene): sleeve-arm
+pairs 0 from frame 37 to 61 with 0; 16-30 in each of those frames with 3 (the sleeve pushed
+through the arm stays through it); with 3 but 0 in the global step's rows bitwise 0, with 0 in
+the pinch count the same as 3; with 1, 0 only from frame 54.
 
 The row census costs a numba pass over every row at each contact pass (diagnostic only;
 ``--no-census`` for timings).
@@ -152,7 +156,7 @@ class Census:
 
 
 class Run:
-    def __init__(self, spec, tmp, iterations, moving=False, census0=False):
+    def __init__(self, spec, tmp, iterations, moving=False, census0=False, without=False):
         mode, _, rest = spec.partition("/")
         mode, _, sites = mode.partition(":")
         self.spec, self.mode = spec, int(mode)
@@ -186,7 +190,7 @@ class Run:
             for m in MAPS:
                 shutil.copy(EXAMPLES / m, d / m)
             ov = {"nucleus_solver": {"iterations": iterations}} if iterations else None
-            (d / "elbow.yaml").write_text(_scene_text(True, ov))
+            (d / "elbow.yaml").write_text(_scene_text(not without, ov))
             self.c = compile_file(d / "elbow.yaml")
             self.sim = Simulation(self.c)
             self.sl = self.c.scene.element("sleeve").vertex_slice
@@ -198,6 +202,7 @@ class Run:
         self.frames = []  # per frame: (events vf, events ee, rows dict)
         self.pinched = []
         self.diffs = []  # --diff: against the first setting, per frame
+        self.pen = []  # sleeve-arm intersecting triangle pairs per frame (as tests/test_elbow)
 
     def step(self):
         saved = {k: getattr(C, k) for k in self.flags}
@@ -228,6 +233,17 @@ class Run:
             self.frames.append((dict(self.events), self.rows))
             self.pinched.append(_state["pinch"])
             return
+        from lokigraph.behaviors.collision.intersect import intersect_meshes
+
+        slv = self.c.scene.element("sleeve")
+        cloth = (q[self.sl], slv.geometry.triangles)
+        pen = 0
+        for nm in ("upper_arm", "forearm", "elbow"):
+            e = self.c.scene.element(nm)
+            _, pairs = intersect_meshes([cloth, (q[e.vertex_slice], e.geometry.triangles)],
+                                        touching=False)
+            pen += int((pairs[:, 0] != pairs[:, 2]).sum())
+        self.pen.append(pen)
         sp = np.linalg.norm(v[self.sl], axis=1)
         near = np.flatnonzero(np.linalg.norm(q[self.sl], axis=1) < NEAR)
         i = near[np.argmax(sp[near])]
@@ -285,6 +301,8 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--iterations", type=int, default=None, help="nucleus_solver.iterations")
     ap.add_argument("--no-census", action="store_true")
+    ap.add_argument("--without", action="store_true", help="test_sleeve_elbow_without_mechanisms"
+                    "' scene (no compliant skin, proximity tolerance, recovery or CCD)")
     ap.add_argument("--diff", action="store_true", help="per frame, each setting's sleeve "
                     "against the first setting's: largest displacement, whether the 10 most "
                     "displaced vertices are vertices of this frame's slid rows, and the speed "
@@ -297,7 +315,7 @@ def main(argv=None):
     ap.add_argument("--top", type=int, default=6, help="frames detailed (fastest near joint)")
     args = ap.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:
-        runs = [Run(s, tmp, args.iterations, args.moving, args.census_all)
+        runs = [Run(s, tmp, args.iterations, args.moving, args.census_all, args.without)
                 for s in args.settings]
         m = runs[0].sim.model
         elem_of = np.full(m.particle_count, -1, np.int64)
@@ -333,6 +351,7 @@ def main(argv=None):
             print(f"frame {f + 2:2d}: " + "  ".join(
                 f"[{r.spec}] v {r.vpinch[-1]:.3f} ev {r.frames[-1][0]['vf']}/"
                 f"{r.frames[-1][0]['ee']} rows {len(r.frames[-1][1])} pin {r.pinched[-1]}"
+                f"{'' if r.moving else f' pen {r.pen[-1]}'}"
                 for r in runs), flush=True)
     print()
     print("| setting | near-joint max m/s (frame) | sleeve max m/s | CPU s | slid events vf/ee "
