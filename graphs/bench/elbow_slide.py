@@ -14,7 +14,8 @@ it; and whether the fastest near-joint vertex of the frame is a vertex of a deac
 Settings: ``S`` = ``contacts.SLIDE_APART`` value (0-3), optionally ``S:SITE,...`` with the
 flag forced to 0 at the named sites (ablation): ``pass`` (the contact passes), ``ccd``
 (``CCD_SLIDE``), ``pinch`` (``strain_limit.count_pinched``), ``global`` (the global strain
-step's ``contact_rows``), or ``gate`` (below); ``NAME=VALUE`` parts after ``/`` set other contacts module globals::
+step's ``contact_rows``), or ``gate`` (below); ``NAME=VALUE`` parts after ``/`` set other
+contacts module globals::
 
     NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/elbow_slide.py 0 1 1:pinch 1:pass
     NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/elbow_slide.py 0 1 --iterations 14
