@@ -2,6 +2,7 @@
 culled candidate set must give the same active contacts, in the same order, as the full set."""
 
 import numpy as np
+import pytest
 
 from lokigraph.api import compile_file
 from lokigraph.behaviors.collision import contacts as C
@@ -144,3 +145,24 @@ def test_scene_is_bitwise_unchanged_by_culling(scene_file, monkeypatch):
     assert [s.get("max_active_contacts") for s in s0] == [s.get("max_active_contacts")
                                                          for s in s1]
     assert np.array_equal(q0, q1)
+
+
+def test_selection_pass_ends_when_a_contact_moves_a_vertex_past_the_bound():
+    """A pass over the selected rows ends at the row whose contact moves one of its vertices
+    farther than the cull bound from the reference (the rows left out of the selection may
+    then activate). A vertex 1 mm over the corner of a kinematic triangle (closest point: the
+    corner, barycentric (0, 0, 1)) with a 4 mm target is pushed 3 mm: past a 1 mm bound, so
+    the pass ends after that row. Before stop 31 the vertex-face kernel compared the motion
+    with the closest point's third barycentric coordinate instead of the bound (a name
+    shadowed it), so it went on."""
+    p = np.array([[0.0, 0.0, 0.001], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
+    w = np.array([1.0, 0.0, 0.0, 0.0])
+    rows = np.array([[0, 1, 2, 3]], np.int64)
+    nrm = np.array([[0.0, 0.0, 1.0]])
+    ref = p.copy()
+    active, resume = C._project_vf_sel(
+        p, p.copy(), w, rows, nrm, np.array([0.004]), np.zeros(1), np.ones(1), 0.0,
+        np.zeros(1, np.bool_), np.zeros(1, np.int64), 1, 0, ref, 1e-6, np.zeros(0))
+    assert active == 1
+    assert p[0, 2] == pytest.approx(0.004)
+    assert resume == 1  # ended after row 0: resume every row from 1

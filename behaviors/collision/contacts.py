@@ -1478,12 +1478,13 @@ def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
             sc = _dn(p, ref, c, m0, m1, m2)
             if lb[r] + sv - max(sa, sb, sc) >= _CULL_TOL:
                 continue
-        d2, b0, b1, b2 = _pt_tri_sq(p[v, 0], p[v, 1], p[v, 2], p[a, 0], p[a, 1], p[a, 2],
-                                     p[b, 0], p[b, 1], p[b, 2], p[c, 0], p[c, 1], p[c, 2])
+        # (bc0, bc1, bc2: barycentric; ``b2`` is the cull bound, kept for the early exit)
+        d2, bc0, bc1, bc2 = _pt_tri_sq(p[v, 0], p[v, 1], p[v, 2], p[a, 0], p[a, 1], p[a, 2],
+                                        p[b, 0], p[b, 1], p[b, 2], p[c, 0], p[c, 1], p[c, 2])
         n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
-        qx = b0 * p[a, 0] + b1 * p[b, 0] + b2 * p[c, 0]
-        qy = b0 * p[a, 1] + b1 * p[b, 1] + b2 * p[c, 1]
-        qz = b0 * p[a, 2] + b1 * p[b, 2] + b2 * p[c, 2]
+        qx = bc0 * p[a, 0] + bc1 * p[b, 0] + bc2 * p[c, 0]
+        qy = bc0 * p[a, 1] + bc1 * p[b, 1] + bc2 * p[c, 1]
+        qz = bc0 * p[a, 2] + bc1 * p[b, 2] + bc2 * p[c, 2]
         dx, dy, dz = p[v, 0] - qx, p[v, 1] - qy, p[v, 2] - qz
         if not onesided[r]:
             # still on the start side: separate along the current closest-point direction
@@ -1498,7 +1499,7 @@ def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
         C = gap - target[r]
         if C >= 0.0:
             continue
-        den = w[v] + b0 * b0 * w[a] + b1 * b1 * w[b] + b2 * b2 * w[c]
+        den = w[v] + bc0 * bc0 * w[a] + bc1 * bc1 * w[b] + bc2 * bc2 * w[c]
         if den <= 0.0:
             continue
         active += 1
@@ -1506,19 +1507,19 @@ def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
         p[v, 0] += w[v] * dl * n0
         p[v, 1] += w[v] * dl * n1
         p[v, 2] += w[v] * dl * n2
-        for k, bk in ((a, b0), (b, b1), (c, b2)):
+        for k, bk in ((a, bc0), (b, bc1), (c, bc2)):
             p[k, 0] -= w[k] * bk * dl * n0
             p[k, 1] -= w[k] * bk * dl * n1
             p[k, 2] -= w[k] * bk * dl * n2
         # friction: relative tangential displacement over the substep
         m = mu[r]
         if m > 0.0 or damping > 0.0:
-            rx = (p[v, 0] - x[v, 0]) - (b0 * (p[a, 0] - x[a, 0]) + b1 * (p[b, 0] - x[b, 0])
-                                        + b2 * (p[c, 0] - x[c, 0]))
-            ry = (p[v, 1] - x[v, 1]) - (b0 * (p[a, 1] - x[a, 1]) + b1 * (p[b, 1] - x[b, 1])
-                                        + b2 * (p[c, 1] - x[c, 1]))
-            rz = (p[v, 2] - x[v, 2]) - (b0 * (p[a, 2] - x[a, 2]) + b1 * (p[b, 2] - x[b, 2])
-                                        + b2 * (p[c, 2] - x[c, 2]))
+            rx = (p[v, 0] - x[v, 0]) - (bc0 * (p[a, 0] - x[a, 0]) + bc1 * (p[b, 0] - x[b, 0])
+                                        + bc2 * (p[c, 0] - x[c, 0]))
+            ry = (p[v, 1] - x[v, 1]) - (bc0 * (p[a, 1] - x[a, 1]) + bc1 * (p[b, 1] - x[b, 1])
+                                        + bc2 * (p[c, 1] - x[c, 1]))
+            rz = (p[v, 2] - x[v, 2]) - (bc0 * (p[a, 2] - x[a, 2]) + bc1 * (p[b, 2] - x[b, 2])
+                                        + bc2 * (p[c, 2] - x[c, 2]))
             rn = rx * n0 + ry * n1 + rz * n2
             tx, ty, tz = rx - rn * n0, ry - rn * n1, rz - rn * n2
             tl = np.sqrt(tx * tx + ty * ty + tz * tz)
@@ -1528,7 +1529,7 @@ def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
                 p[v, 0] -= w[v] * s * tx
                 p[v, 1] -= w[v] * s * ty
                 p[v, 2] -= w[v] * s * tz
-                for k, bk in ((a, b0), (b, b1), (c, b2)):
+                for k, bk in ((a, bc0), (b, bc1), (c, bc2)):
                     p[k, 0] += w[k] * bk * s * tx
                     p[k, 1] += w[k] * bk * s * ty
                     p[k, 2] += w[k] * bk * s * tz
