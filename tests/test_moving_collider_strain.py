@@ -75,14 +75,17 @@ def test_vertex_face_row_slid_apart_is_inactive_against_a_collider():
     assert np.array_equal(_vf(p, w, n0, 1), np.array(p))
 
 
-def test_slide_mode_3_keeps_the_row_in_the_passes_not_in_the_global_step():
+def test_slide_mode_3_keeps_the_row_in_the_passes_not_in_the_global_step(monkeypatch):
     """``SLIDE_APART`` 3: the contact passes push the slid-apart row back as 0 does; the global
-    strain step's contact rows and ``row_slid_apart`` skip it as 1 does."""
+    strain step's contact rows and ``row_slid_apart`` skip it as 1 does (the modes the sites
+    get from ``contacts.slide_mode``)."""
     from lokigraph.behaviors.materials import strain_limit_global as SLG
 
+    monkeypatch.setattr(C, "SLIDE_APART", 3)
+    passes, other = C.slide_mode(True), C.slide_mode(False)
     w = [1.0, 1.0, 0.0, 0.0]
-    assert np.array_equal(_ee(SLID, w, N_SLID, 3), _ee(SLID, w, N_SLID, 0))
-    assert not np.array_equal(_ee(SLID, w, N_SLID, 3), np.array(SLID))
+    assert np.array_equal(_ee(SLID, w, N_SLID, passes), _ee(SLID, w, N_SLID, 0))
+    assert not np.array_equal(_ee(SLID, w, N_SLID, passes), np.array(SLID))
 
     def rows_taken(slide):
         p = np.array(SLID, dtype=np.float64)
@@ -93,7 +96,7 @@ def test_slide_mode_3_keeps_the_row_in_the_passes_not_in_the_global_step():
                                 np.zeros(1, np.bool_), False, np.zeros(1, np.bool_), *out,
                                 0.0, False, slide)
 
-    assert rows_taken(0) == 1 and rows_taken(1) == 0 and rows_taken(3) == 0
+    assert rows_taken(0) == 1 and rows_taken(1) == 0 and rows_taken(other) == 0
 
 
 @pytest.mark.slow

@@ -155,6 +155,18 @@ _CULL_TOL = 1e-9  # [m] slack over rounding in the cull bound
 #: them apart; the collider's own motion over the substep, as in the rejected candidate above,
 #: could, but ``contact_rows`` has no start positions).
 SLIDE_APART = 0
+
+
+def slide_mode(passes: bool) -> int:
+    """The ``SLIDE_APART`` mode (0, 1 or 2) a site applies: ``passes`` for the contact passes of
+    the solver iterations and final rounds, else for the CCD safe step, the global strain
+    step's contact rows and the pinch count. 3 is 0 in the passes (they keep slid rows) and 1
+    at the other sites; the kernels see only 0-2."""
+    if SLIDE_APART == 3:
+        return 0 if passes else 1
+    return SLIDE_APART
+
+
 #: with ``SLIDE_APART``, the CCD safe step's contacts at the time of impact too
 CCD_SLIDE = True
 #: space-time boxes (``broadphase.spacetime_boxes``) for the self pairs of every element, and no
@@ -946,9 +958,10 @@ def _cull_rows(rows, nrm, target, ref, is_vf, lim, sel, lb):
 
 def _project_contacts(c, p, x, w, slide=None) -> int:
     """One Gauss-Seidel pass over all packed contacts; returns the number of active ones.
-    ``slide``: the ``SLIDE_APART`` mode of this pass (None: ``SLIDE_APART``)."""
+    ``slide``: the ``SLIDE_APART`` mode of this pass (None: that of the solver's contact
+    passes, ``slide_mode(True)``)."""
     a = 0
-    sl = SLIDE_APART if slide is None else slide
+    sl = slide_mode(True) if slide is None else slide
     b = c.cull_b
     if b < 0.0 or c.cull_ref is None:
         if len(c.vf):
@@ -1422,10 +1435,9 @@ def _slid_apart(d2, dn, tgt, wa, wb, mode):
     """A two-sided row on the far side of n0 (``dn`` = separation . n0 <= 0) whose primitives'
     closest points (squared distance ``d2``) lie at least its target ``tgt`` apart across n0,
     with ``mode`` 1 only where one primitive is immovable (summed inverse masses ``wa`` or
-    ``wb`` zero), with 2 any: slid past each other, not crossed (``SLIDE_APART``). With 3 never
-    (the contact passes of the iterations and final rounds keep the row; the CCD safe step
-    and ``row_slid_apart`` take 3 as 1)."""
-    return ((mode == 2 or wa <= 0.0 or wb <= 0.0) and (mode == 1 or mode == 2)
+    ``wb`` zero), with 2 any: slid past each other, not crossed (``SLIDE_APART``, as
+    ``slide_mode`` gives it to the site)."""
+    return ((mode >= 2 or wa <= 0.0 or wb <= 0.0) and mode >= 1
             and d2 - dn * dn >= tgt * tgt)
 
 
@@ -2467,7 +2479,7 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
         he = _ccd_hits(work, c.ee, c.ee_n, c.ee_target, False, x, p, frac)
         return hv, he
 
-    sl_ccd = 1 if SLIDE_APART == 3 else SLIDE_APART  # 3: the safe step skips slid rows
+    sl_ccd = slide_mode(False)
     cover = _rows_cover(c, x, p, frac)
     if not cover and CCD_INCREMENTAL > 0.0 and _ccd_incremental(c, work, x, p, v, h, frac):
         st["ccd_incremental"] = st.get("ccd_incremental", 0) + 1

@@ -114,12 +114,9 @@ def row_slid_apart(w, rows, target, onesided, is_vf, r, d2, gap, mode):
     separation ``gap`` along the normal, its closest points' squared distance ``d2``): a
     two-sided row against a collider on the far side of its start normal whose closest points
     lie at least its target apart across that normal, inactive as ``project_vf`` /
-    ``project_ee`` take it with ``slide`` (``mode``: ``contacts.SLIDE_APART``; 3 as 1, though
-    the contact passes of the iterations and final rounds keep such rows with 3)."""
+    ``project_ee`` take it with ``slide`` (``mode``: ``contacts.slide_mode(False)``)."""
     if gap > 0.0 or mode == 0 or (is_vf and onesided[r]):
         return False
-    if mode == 3:  # the contact passes keep these rows; the global step and pinch count not
-        mode = 1
     i0, i1, i2, i3 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
     if is_vf:
         return _slid_apart(d2, gap, target[r], w[i0], w[i1] + w[i2] + w[i3], mode)
@@ -576,7 +573,7 @@ class StrainLimitConstraint(ConstraintBehavior):
             seen[:] = 0
             w = ctx.model.particle_inv_mass
             x = ctx.state.particle_q
-            sl = _contacts.SLIDE_APART
+            sl = _contacts.slide_mode(False)
             k = count_pinched(x, w, cloth, c.vf, c.vf_n, c.vf_target, c.vf_onesided, True,
                               first, seen, sl)
             k += count_pinched(x, w, cloth, c.ee, c.ee_n, c.ee_target, c.vf_onesided[:0],

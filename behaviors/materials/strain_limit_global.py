@@ -350,7 +350,7 @@ class GlobalStrainStep:
                 rows, nrm, tgt, one, keep = sub[k]
                 keep[:] = False
             nk = contact_rows(p, w, rows, nrm, tgt, one, k == "vf", keep, cb[0], cb[1], cb[2],
-                              cb[3], margin, collider_only, _contacts.SLIDE_APART)
+                              cb[3], margin, collider_only, _contacts.slide_mode(False))
             if nk:
                 cs.append((cb[0][:nk], cb[1][:nk], cb[2][:nk], cb[3][:nk]))
         if not cs:

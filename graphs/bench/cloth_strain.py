@@ -448,10 +448,10 @@ def _row_kinds(c, ball_mask):
 def _kind_pass(c, kinds, q0, x, w, strain, slide=None):
     """One contact pass of each kind of rows alone from ``q0`` (copies): rows, active rows, worst
     strain after, largest move and vertices moved over 1 mm; printed. ``slide``: the pass's
-    ``SLIDE_APART`` mode (None: ``contacts.SLIDE_APART``)."""
+    ``SLIDE_APART`` mode (None: the solver passes', ``contacts.slide_mode(True)``)."""
     from lokigraph.behaviors.collision import contacts as C
 
-    sl = C.SLIDE_APART if slide is None else slide
+    sl = C.slide_mode(True) if slide is None else slide
     for k, (is_vf, sel) in kinds.items():
         q = q0.copy()
         if is_vf:
