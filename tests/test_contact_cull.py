@@ -30,25 +30,31 @@ def _random_rows(rng, x, n_rows, is_vf):
     return np.array(rows, np.int64), np.array(nrm)
 
 
-def _passes(is_vf, p, x, w, rows, nrm, tgt, sel, nsel, ref, b, lb, n_pass=4):
-    """``n_pass`` Gauss-Seidel passes; returns the active count of each."""
+def _passes(is_vf, p, x, w, rows, nrm, tgt, sel, nsel, ref, b, lb, n_pass=4, moved=False):
+    """``n_pass`` Gauss-Seidel passes; returns the active count of each. ``moved``: with the
+    per-vertex moved distances' pre-gate (``MOVED_GATE``), taken at the start of each pass."""
     mu = np.full(len(rows), 0.3)
     st = np.ones(len(rows))
     out = []
+    u = np.zeros(len(p)) if moved else C._NO_U
     for _ in range(n_pass):
+        if moved:
+            C._moved_norms(p, ref, u)
         if is_vf:
             one = np.zeros(len(rows), np.bool_)
             a, r = C._project_vf_sel(p, x, w, rows, nrm, tgt, mu, st, 0.0, one, sel, nsel, 0,
-                                     ref, b * b, lb)
+                                     ref, b * b, lb, 0, u)
             if r >= 0:
                 a += C._project_vf_sel(p, x, w, rows, nrm, tgt, mu, st, 0.0, one, sel, -1, r,
-                                       ref, b * b, lb)[0]
+                                       ref, b * b, lb, 0, u)[0]
         else:
             a, r = C._project_ee_sel(p, x, w, rows, nrm, tgt, mu, st, 0.0, sel, nsel, 0, ref,
-                                     b * b, lb)
+                                     b * b, lb, 0, u)
             if r >= 0:
                 a += C._project_ee_sel(p, x, w, rows, nrm, tgt, mu, st, 0.0, sel, -1, r, ref,
-                                       b * b, lb)[0]
+                                       b * b, lb, 0, u)[0]
+        if moved:  # the kernels kept the distances current
+            assert np.allclose(u, np.linalg.norm(p - ref, axis=1), rtol=1e-14, atol=0.0)
         out.append(a)
     return out
 
@@ -78,10 +84,15 @@ def _compare(is_vf, lb_shift=0.0, seed=0):
         pg = p0.copy()  # every row, with the per-row gate
         gated = _passes(is_vf, pg, x, w, rows, nrm, tgt, C._NO_SEL, -1, ref, b, lb)
         same &= full == gated and np.array_equal(pf, pg)
+        pm = p0.copy()  # every row, the moved distances' pre-gate before the per-row gate
+        same &= full == _passes(is_vf, pm, x, w, rows, nrm, tgt, C._NO_SEL, -1, ref, b, lb,
+                                moved=True) and np.array_equal(pf, pm)
         if C._max_move(ref, p0) <= b:  # the culled index applies
-            pc = p0.copy()
-            culled = _passes(is_vf, pc, x, w, rows, nrm, tgt, sel, k, ref, b, lb)
-            same &= full == culled and np.array_equal(pf, pc)
+            for moved in (False, True):
+                pc = p0.copy()
+                culled = _passes(is_vf, pc, x, w, rows, nrm, tgt, sel, k, ref, b, lb,
+                                 moved=moved)
+                same &= full == culled and np.array_equal(pf, pc)
         # rows the gate skips at the start of the first pass
         idx = rows
         s = np.einsum("rkj,rj->rk", p0[idx] - ref[idx], nrm)

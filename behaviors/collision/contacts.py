@@ -297,6 +297,15 @@ RELATIVE_SLACK = 0.0015
 #: groups' vertices; more (or 0): detect everything again over x -> p, which the check then
 #: measures from
 RELATIVE_INCREMENTAL = 0.05
+#: the contact passes over culled rows first test each row's bound ``lb`` against the
+#: distances its vertices moved from the reference positions (``Contacts.moved``, |p - ref|
+#: per vertex, taken at the start of a pass and kept current by the rows that move vertices),
+#: and only where that does not rule the row out its motion along n0 (the gate of
+#: ``_project_ee_sel``): lb - max |u_a| - max |u_b| bounds lb + min (u_a . n0) - max (u_b . n0)
+#: from below, so a row it skips the gate skips too (``_GATE_TOL`` over the rounding of the
+#: two). Positions bitwise those of False (the gate alone).
+MOVED_GATE = True
+_GATE_TOL = 1e-12  # [m]
 #: the swept-box detections (over the predicted motion) and the space-time ones (final rounds,
 #: CCD) query into their own pair buffers: a buffer sizes the single traversal pass's scratch
 #: from its previous query, and alternating 222k swept and 78k space-time edge pairs (64 x 64
@@ -482,6 +491,8 @@ class _Contacts:
     rel_vn: dict = field(default_factory=dict)
     cull_passes: int = 0  # projection passes over the culled rows / over every row (counts)
     full_passes: int = 0
+    # ``MOVED_GATE``: |p - cull_ref| per vertex [m], kept current through a pass
+    moved: np.ndarray = None
 
 
 def _members(ctx, e, g):
@@ -976,7 +987,15 @@ def _project_contacts(c, p, x, w, slide=None) -> int:
     # their order, until a contact moves a vertex past b (then every row from there on)
     ref, b2 = c.cull_ref, b * b
     lbv, lbe = c.vf_lb[:len(c.vf)], c.ee_lb[:len(c.ee)]
-    nv, ne = (c.n_vf_sel, c.n_ee_sel) if _max_move(ref, p) <= b else (-1, -1)
+    if MOVED_GATE:
+        if c.moved is None or len(c.moved) != len(p):
+            c.moved = np.zeros(len(p))
+        u = c.moved
+        far = _moved_norms(p, ref, u) > b
+    else:
+        u = _NO_U
+        far = _max_move(ref, p) > b
+    nv, ne = (-1, -1) if far else (c.n_vf_sel, c.n_ee_sel)
     if nv >= 0:
         c.cull_passes += 1
     else:
@@ -984,19 +1003,21 @@ def _project_contacts(c, p, x, w, slide=None) -> int:
     rv = re = -1
     if len(c.vf):
         av, rv = _project_vf_sel(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
-                                 c.damping, c.vf_onesided, c.vf_sel, nv, 0, ref, b2, lbv, sl)
+                                 c.damping, c.vf_onesided, c.vf_sel, nv, 0, ref, b2, lbv, sl,
+                                 u)
         a += av
         if rv >= 0:
             a += _project_vf_sel(p, x, w, c.vf, c.vf_n, c.vf_target, c.vf_mu, c.strength,
-                                 c.damping, c.vf_onesided, c.vf_sel, -1, rv, ref, b2, lbv, sl)[0]
+                                 c.damping, c.vf_onesided, c.vf_sel, -1, rv, ref, b2, lbv, sl,
+                                 u)[0]
             ne = -1
     if len(c.ee):
         ae, re = _project_ee_sel(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
-                                 c.damping, c.ee_sel, ne, 0, ref, b2, lbe, sl)
+                                 c.damping, c.ee_sel, ne, 0, ref, b2, lbe, sl, u)
         a += ae
         if re >= 0:
             a += _project_ee_sel(p, x, w, c.ee, c.ee_n, c.ee_target, c.ee_mu, c.ee_strength,
-                                 c.damping, c.ee_sel, -1, re, ref, b2, lbe, sl)[0]
+                                 c.damping, c.ee_sel, -1, re, ref, b2, lbe, sl, u)[0]
     return a
 
 
@@ -1453,6 +1474,7 @@ def project_vf(p, x, w, rows, nrm, target, mu, strength, damping, onesided, slid
 _NO_SEL = np.zeros(0, np.int64)
 _NO_REF = np.zeros((0, 3))
 _NO_LB = np.zeros(0)
+_NO_U = np.zeros(0)  # no per-vertex moved distances (``MOVED_GATE`` off)
 
 
 @njit(cache=True, inline="always")
@@ -1469,7 +1491,7 @@ def _moved2(p, ref, i):
 
 @njit(cache=True)
 def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided, sel, nsel,
-                    start, ref, b2, lb, slide=0):
+                    start, ref, b2, lb, slide=0, u=_NO_U):
     """``project_vf`` over the rows ``sel[:nsel]`` in that order (rows ``start:`` if nsel < 0).
     Over a selection, a row that moves one of its vertices farther than ``sqrt(b2)`` from
     ``ref`` ends the pass early: returns (active, the row number to resume every row from);
@@ -1483,6 +1505,9 @@ def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
         r = it if nsel < 0 else sel[it]
         v, a, b, c = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         if lb.shape[0]:
+            if u.shape[0] and (lb[r] - u[v] - max(u[a], u[b], u[c])
+                               >= _CULL_TOL + _GATE_TOL):
+                continue
             m0, m1, m2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
             sv = _dn(p, ref, v, m0, m1, m2)
             sa = _dn(p, ref, a, m0, m1, m2)
@@ -1545,6 +1570,9 @@ def _project_vf_sel(p, x, w, rows, nrm, target, mu, strength, damping, onesided,
                     p[k, 0] += w[k] * bk * s * tx
                     p[k, 1] += w[k] * bk * s * ty
                     p[k, 2] += w[k] * bk * s * tz
+        if u.shape[0]:
+            for k in (v, a, b, c):
+                u[k] = np.sqrt(_moved2(p, ref, k))
         if nsel >= 0 and (_moved2(p, ref, v) > b2 or _moved2(p, ref, a) > b2
                           or _moved2(p, ref, b) > b2 or _moved2(p, ref, c) > b2):
             return active, sel[it] + 1
@@ -1561,7 +1589,7 @@ def project_ee(p, x, w, rows, nrm, target, mu, strength, damping, slide=0):
 
 @njit(cache=True)
 def _project_ee_sel(p, x, w, rows, nrm, target, mu, strength, damping, sel, nsel, start, ref,
-                    b2, lb, slide=0):
+                    b2, lb, slide=0, u=_NO_U):
     """``project_ee`` over the rows ``sel[:nsel]`` in that order (rows ``start:`` if nsel < 0);
     scalar arithmetic, no per-row allocation.
     Over a selection, a row that moves one of its vertices farther than ``sqrt(b2)`` from
@@ -1577,6 +1605,9 @@ def _project_ee_sel(p, x, w, rows, nrm, target, mu, strength, damping, sel, nsel
         a0, a1, b0, b1 = rows[r, 0], rows[r, 1], rows[r, 2], rows[r, 3]
         n0, n1, n2 = nrm[r, 0], nrm[r, 1], nrm[r, 2]
         if lb.shape[0]:
+            if u.shape[0] and (lb[r] - max(u[a0], u[a1]) - max(u[b0], u[b1])
+                               >= _CULL_TOL + _GATE_TOL):
+                continue
             s0 = _dn(p, ref, a0, n0, n1, n2)
             s1 = _dn(p, ref, a1, n0, n1, n2)
             s2 = _dn(p, ref, b0, n0, n1, n2)
@@ -1628,6 +1659,9 @@ def _project_ee_sel(p, x, w, rows, nrm, target, mu, strength, damping, sel, nsel
                     p[vtx, 0] -= w[vtx] * cf * sc * t0
                     p[vtx, 1] -= w[vtx] * cf * sc * t1
                     p[vtx, 2] -= w[vtx] * cf * sc * t2
+        if u.shape[0]:
+            for k in (a0, a1, b0, b1):
+                u[k] = np.sqrt(_moved2(p, ref, k))
         if nsel >= 0 and (_moved2(p, ref, a0) > b2 or _moved2(p, ref, a1) > b2
                           or _moved2(p, ref, b0) > b2 or _moved2(p, ref, b1) > b2):
             return active, sel[it] + 1
@@ -2306,6 +2340,18 @@ def _max_move(a, b):
     m = 0.0
     for i in range(a.shape[0]):
         d = (a[i, 0] - b[i, 0]) ** 2 + (a[i, 1] - b[i, 1]) ** 2 + (a[i, 2] - b[i, 2]) ** 2
+        if d > m:
+            m = d
+    return np.sqrt(m)
+
+
+@njit(cache=True)
+def _moved_norms(p, ref, out):
+    """|p - ref| per vertex into ``out``; returns the largest (``_max_move``'s value)."""
+    m = 0.0
+    for i in range(p.shape[0]):
+        d = (p[i, 0] - ref[i, 0]) ** 2 + (p[i, 1] - ref[i, 1]) ** 2 + (p[i, 2] - ref[i, 2]) ** 2
+        out[i] = np.sqrt(d)
         if d > m:
             m = d
     return np.sqrt(m)
