@@ -220,7 +220,10 @@ def install_stages(n_cloth: int):
     ``s_STAGE.PART`` [s] (and ``c_STAGE.PART`` calls). Stages: ``first`` (the substep's
     detection, ``CollisionDetect.step``), ``iter`` (``CollisionConstraint.project``: the contact
     passes of the iterations, re-detections included), ``final`` (the final rounds: their
-    detections and passes), ``ccd`` (the safe step). Parts: ``boxes`` (primitive and
+    detections and passes), ``ccd`` (the safe step), ``global`` (the global strain step,
+    ``GlobalStrainStep.run``: not a collision stage, but the part of the frame that grows
+    fastest with resolution; parts ``factor``, its factorisations, and ``sweeps``, its
+    smoothing sweeps). Parts: ``boxes`` (primitive and
     space-time boxes), ``broad`` (the column grid's / trees' queries), ``order`` (the Z-order
     sort), ``filter_vf`` / ``filter_ee`` (the narrow filters), ``pack``, ``cull``, ``pass``
     (``_project_contacts``; ``full`` counts the passes over every row), ``ccd_hits``.
@@ -311,6 +314,11 @@ def install_stages(n_cloth: int):
     staged(C.CollisionConstraint, "project", "iter")
     staged(C.CollisionConstraint, "finalize", "final")
     staged(C.CollisionConstraint, "after_finalize", "ccd")
+    from lokigraph.behaviors.materials.strain_limit_global import GlobalStrainStep as G
+
+    timed(G, "_factorise", "factor")
+    timed(G, "_smooth_sweeps", "sweeps")
+    staged(G, "run", "global")
 
 
 install_stages.n_cloth = [0]
