@@ -9,9 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lokigraph.behaviors.solvers.implicit.contact import (extend_live, lag_rows, lag_rows_live,
-                                                          lag_rows_sel, row_energy,
-                                                          start_targets, start_targets_on)
+from lokigraph.behaviors.solvers.implicit.contact import (extend_live, extend_live_moved,
+                                                          lag_rows, lag_rows_live, lag_rows_sel,
+                                                          row_energy, start_targets,
+                                                          start_targets_on)
 from lokigraph.behaviors.solvers.implicit.energy import limit_energy
 
 
@@ -111,6 +112,55 @@ def test_lag_after_a_line_search_visits_only_the_listed_rows():
                 changed += int(ra[1] != ns0)
             x = x + 0.5 * dx
     assert changed > 0
+
+
+def test_moved_extension_keeps_the_same_rows():
+    """extend_live_moved toward a point that differs from x0 only at flagged (Dirichlet)
+    vertices, after lag_rows_live at x0 (start_at_rest's extension): bitwise what extend_live
+    gives (marks, live list, coefficients, stiffnesses, normal forces), with rows joining
+    there and most rows never visited (the test can fail both ways)."""
+    rng = np.random.default_rng(3)
+    n, m = 80, 3000
+    mass = np.full(n, 1e-3)
+    fixed = np.zeros(n, bool)
+    fixed[:4] = True
+    for is_vf in (True, False):
+        # two layers, side one of every row in the upper one: most rows far from their target
+        _, nrm, tgt = _rows(rng, n, m)
+        up, low = np.arange(4, n // 2), np.arange(n // 2, n)
+        k = 1 if is_vf else 2
+        rows = np.concatenate([rng.choice(up, (m, k)), rng.choice(low, (m, 4 - k))], axis=1)
+        rows[:m // 20, k] = rng.choice(4, m // 20)  # rows on the Dirichlet vertices
+        x0 = rng.uniform(-0.05, 0.05, size=(n, 3))
+        x0[:, 1] = rng.uniform(-0.01, 0.01, size=n)
+        x0[up, 1] = rng.uniform(0.0, 0.1, size=len(up))
+        a = [np.zeros((m, 4)), np.zeros(m), np.zeros(m), np.zeros(m, np.uint8),
+             np.zeros(m, np.int64)]
+        ns0 = lag_rows_live(x0, fixed, mass, 100.0, rows, nrm, tgt, is_vf, *a[:3], 0.0,
+                            *a[3:])[1]
+        assert ns0 < m // 4
+        # violated_rows: the live rows' targets lowered at x0, then lagged again there:
+        # the listed rows alone (lag_rows_sel) give what a pass over every row gives
+        tg = tgt.copy()
+        on = fixed | (x0[:, 1] > 0.05)
+        low_ = start_targets_on(x0, rows, nrm, tg, a[0], tg, a[4][:ns0], on)
+        b = [v.copy() for v in a]
+        ra = lag_rows_live(x0, fixed, mass, 100.0, rows, nrm, tg, is_vf, *a[:3], 0.0, *a[3:])
+        rb = lag_rows_sel(x0, fixed, mass, 100.0, rows, nrm, tg, is_vf, *b[:3], 0.0, *b[3:],
+                          ns0)
+        assert low_ > 0 and ra == rb
+        for u, w in zip(a, b):
+            assert np.array_equal(u, w)
+        ns0 = ra[1]
+        b = [v.copy() for v in a]
+        xr = x0.copy()
+        xr[fixed, 1] += 0.05  # the Dirichlet vertices rise into the upper layer
+        na = extend_live(xr, x0, fixed, mass, 100.0, rows, nrm, tgt, is_vf, *a)
+        nb = extend_live_moved(xr, x0, fixed.copy(), fixed, mass, 100.0, rows, nrm, tgt,
+                               is_vf, *b)
+        assert ns0 < na == nb < m // 2
+        for u, w in zip(a, b):
+            assert np.array_equal(u, w)
 
 
 def test_start_targets_hold_only_the_flagged_rows():

@@ -397,6 +397,28 @@ def extend_live(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam
 
 
 @njit(cache=True)
+def extend_live_moved(xb, x, moved, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam,
+                      mark, sel):
+    """``extend_live`` when xb differs from x only at the vertices flagged in ``moved`` and
+    every row not live (``mark`` 0) has a gap bound of at least ``LIVE_SLACK`` at x (as after
+    ``lag_rows_live`` or ``extend_live`` at x): a row none of whose vertices moved has bitwise
+    the same gap bound at xb as at x, so it stays out without its bound being formed; the
+    others are tested as ``extend_live`` tests them. The same marks, lags and ``sel``.
+    Returns the number of live rows."""
+    ns = 0
+    for r in range(rows.shape[0]):
+        if mark[r] == 0 and (moved[rows[r, 0]] or moved[rows[r, 1]] or moved[rows[r, 2]]
+                             or moved[rows[r, 3]]):
+            if _gap_bound(xb, rows, nrm, target, is_vf, r) < LIVE_SLACK:
+                _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
+                mark[r] = 1
+        if mark[r]:
+            sel[ns] = r
+            ns += 1
+    return ns
+
+
+@njit(cache=True)
 def start_targets(x, rows, nrm, target, coef, out, sel):
     """``start_targets_on`` for every row in ``sel``."""
     return start_targets_on(x, rows, nrm, target, coef, out, sel,

@@ -172,9 +172,10 @@ from lokigraph.errors import InputError
 
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
-from .contact import (contact_energy_al, extend_live, lag_contacts_al, lag_rows, lag_rows_live,
-                      lag_rows_sel, mark_closing, row_energy, row_energy_coupled, row_residuals,
-                      safety_project, start_targets_on, update_contact_multipliers)
+from .contact import (contact_energy_al, extend_live, extend_live_moved, lag_contacts_al,
+                      lag_rows, lag_rows_live, lag_rows_sel, mark_closing, row_energy,
+                      row_energy_coupled, row_residuals, safety_project, start_targets_on,
+                      update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, gather_blocks, gather_map, limit_energy
 from .compliant import compliant_edges, shape_energy
 from .linear import BlockJacobi, Identity, SmoothedAggregation, invert_blocks
@@ -1078,11 +1079,17 @@ class ImplicitSolver(Behavior):
                 hot[sel[st[6][sel] > 0.0]] = 1
         return act, dl, top, dgap
 
-    def _extend_live(self, ctx, d, xb, x):
+    def _extend_live(self, ctx, d, xb, x, moved=None):
         """Before a line search from x toward xb: the rows live somewhere on the segment join
-        the live rows, lagged at x (``extend_live``)."""
+        the live rows, lagged at x (``extend_live``). ``moved`` (bool per vertex): xb differs
+        from x only there, and every row not live has its gap bound >= ``LIVE_SLACK`` at x
+        (``extend_live_moved``: the same result)."""
         h2k = self.params.contact_stiffness / (ctx.dt * ctx.dt)
         for rows, nrm, tgt, mu, coef, kr, lam, _lp, is_vf, mark, sel, ns in d.rows["sets"]:
+            if moved is not None:
+                ns[0] = extend_live_moved(xb, x, moved, d.cur_fixed, ctx.model.particle_mass,
+                                          h2k, rows, nrm, tgt, is_vf, coef, kr, lam, mark, sel)
+                continue
             ns[0] = extend_live(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k, rows, nrm,
                                 tgt, is_vf, coef, kr, lam, mark, sel)
 
@@ -1159,14 +1166,21 @@ class ImplicitSolver(Behavior):
                 for rows, nrm, tg, _mu, coef, _k, _l, _p, _v, _m, sel, ns in d.rows["sets"]:
                     low += start_targets_on(w["x0"], rows, nrm, tg, coef, tg, sel[:ns[0]], on)
                 c["held_rows"] += low
-                self._lag_rows(ctx, d, w["x0"], live=live)
+                # the rows not live at x^n keep their targets (start_targets_on visits the
+                # live ones), so lagging the listed rows again is what a pass over every row
+                # gives (``lag_rows_sel`` at the same point: exact)
+                self._lag_rows(ctx, d, w["x0"], live=live, on_segment=live)
             if live:  # rows that the start guess and x^n may close, lagged at x^n
                 self._extend_live(ctx, d, xs, w["x0"])
                 if P.start_at_rest:
                     xr = w["pp"]
                     np.copyto(xr, w["x0"])
                     np.copyto(xr, xs, where=fixed[:, None])
-                    self._extend_live(ctx, d, xr, w["x0"])
+                    # xr is x^n but at the Dirichlet vertices: only rows with a vertex that
+                    # moved there can join (``extend_live_moved``; none when none moved)
+                    moved = fixed & (xr != w["x0"]).any(axis=1)
+                    if moved.any():
+                        self._extend_live(ctx, d, xr, w["x0"], moved)
         contacts = d.shapes is not None or bool(d.rows.get("sets"))
         n_it = P.contact_newton_iterations if contacts else P.newton_iterations
         if P.start_at_rest and d.rows.get("sets"):  # the lower of E(guess) and E(x^n)
