@@ -11,6 +11,23 @@ interleaved ABBA, positions and velocities compared bitwise after every frame, C
 Run it twice: the first run compiles the "before" kernels (numba caches them); frame 6, the
 first contact frame, also loads the collision kernels in whichever simulation runs first, so
 the means over frames 7.. are the comparison.
+
+Measured against 4c1e992 (commit ac3977d: the second lag at x^n through ``lag_rows_sel``,
+start_at_rest's extension through ``extend_live_moved``, skipped for the static ball), 1 thread,
+the shared 2-core machine at load 4-6, positions and velocities bitwise equal in every frame;
+CPU ms per frame over frames 7..N, before / after (``lag``: the row lags and extensions):
+
+    64 (14 frames)    total 3,188 / 3,137 (0.984), lag 327 / 275
+    128 (10 frames)   total 17,908 / 17,462 (0.975), lag 4,520 / 3,565; frame 9 lag 7,626 / 5,962
+
+What remains of ``lag`` is mostly ``extend_live``'s pass over every row in every Newton
+iteration (13.1 M rows at frame 9 of the 128 x 128 drop, of which at most ~70 k live after the
+first iteration: ~170 ms a pass, 22 passes a substep). Tried and not kept (exact, bitwise the
+same rows, in a kernel-level A/B on the 64 x 64 drop's frames 6-11): a per-row certificate
+from the per-vertex path length since the row's last test (the row skipped while its last gap
+bound exceeds the path its vertices may have covered): it spared 50-66 % of the rows' bounds
+but the pass cost the same (0.02-0.44 s per frame either way): the four path gathers and the
+row's indices cost what the bound's gathers cost.
 """
 
 from __future__ import annotations
