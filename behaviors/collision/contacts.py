@@ -1901,6 +1901,34 @@ class _CCDWork:
             self.nrm = np.zeros((self.cap, 3))
 
 
+#: polish passes of the CCD safe step: after each round's ``n_it`` passes (joint strain passes,
+#: the contacts at the time of impact, every contact row), this many joint passes with the
+#: contacts at the time of impact alone; the CCD check after the round guards every pair as
+#: before (0: none, before). The pass over every row re-projects the cloth-cloth contacts the
+#: global strain step left the cloth in and ends the round with the cloth stretched: on
+#: cloth_sphere_moving_128 (2x15) frame 9's safe step took the worst edge from 17.2 to 72.0 %
+#: with one hit (``graphs/bench/cloth_strain.py --substages``); with 4: to 10.6 %, frame 10
+#: 18.2 -> 10.8 %, frame 11 12.8 -> 7.3 %. One interleaved run (``NUMBA_NUM_THREADS=1 python
+#: graphs/bench/peer_collision.py --moving --loki 2x15 --frames 16 --newton none --moving-flag
+#: CCD_POLISH=4 CCD_POLISH=10``, load 3-5 on 2 cores): worst edge at the end of frames 7-16
+#: 29.3 / 14.6 / 72.0 / 31.0 / 15.5 / 4.8 / 11.3 / 18.1 / 19.4 / 61.0 % -> 29.3 / 14.6 / 10.6 /
+#: 10.8 / 7.3 / 4.9 / 4.6 / 22.6 / 18.1 / 22.6 % (10: 9.8 / 8.9 / 6.5 / 1.7 / 8.1 / 21.0 / 15.8 /
+#: 17.0 % from frame 9); CPU per frame against the static drop 1.81 -> 1.83x (mean of frames
+#: 2-16; 1.81x with 10); 0 intersecting pairs and 0 vertices inside in every frame. What is
+#: left there is the global step's (frames 7-8 and 14-16: it stops at its 20 passes with
+#: 15-33 % left). The static drop has no CCD hit: unchanged. Not paid (measured in the same
+#: way): no pass over the rows in the safe step (frames 9-11 10.4 / 7.9 / 12.7 %, but 1,116-2,770
+#: intersecting pairs in frames 12-14: the impact zones cannot hold a cloth against a spinning
+#: ball), the rows' targets capped at their gap at the safe step's entry (41.9 / 9.6 / 9.2 %,
+#: 12.0 % in frame 12; with polish 4 frame 12 29.1 %), the contacts at the time of impact
+#: pushing their pair apart only to its start distance (with polish 4: frame 12 9.8 %).
+#: With the opt-in ``SLIDE_APART`` 3 (``--moving-flag SLIDE_APART=3``, 14 frames, same run as
+#: the defaults' 29.3 / 14.6 / 10.6 / 10.8 / 7.3 / 4.9 / 4.6 / 22.6 %): frames 7-14 3.0 / 1.5 /
+#: 9.2 / 9.7 / 13.3 / 1.3 / 1.6 / 1.5 % (2.7 / 1.6 / 14.1 / 17.0 / 11.6 / 1.4 % without polish)
+#: at 1.68x the static drop's mean CPU (the defaults 1.82x), 0 pairs, 0 vertices inside.
+CCD_POLISH = 4
+
+
 _EMPTY_ITERS = np.zeros(0, np.int64)
 #: below this many pairs the CCD runs on one thread (no parallel launch or barrier)
 CCD_PARALLEL_MIN = 512
@@ -2547,6 +2575,16 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
                 project_ee(p, x, w, ce[0], ce[1], ce[2], ce[3], ce[4], c.damping,
                            sl_ccd if CCD_SLIDE else 0)
             _project_contacts(c, p, x, w, sl_ccd)
+        # polish (``CCD_POLISH``): the strain limit with the contacts at the time of impact
+        # alone; the pass over every row above ends each round with the cloth stretched
+        for _it in range(CCD_POLISH if joint_step is not None else 0):
+            joint_step(p)
+            if cv is not None:
+                project_vf(p, x, w, cv[0], cv[1], cv[2], cv[3], cv[4], c.damping, cv[5],
+                           sl_ccd if CCD_SLIDE else 0)
+            if ce is not None:
+                project_ee(p, x, w, ce[0], ce[1], ce[2], ce[3], ce[4], c.damping,
+                           sl_ccd if CCD_SLIDE else 0)
         hv, he = hits()
     if not len(hv[0]) and not len(he[0]):
         return st
