@@ -382,6 +382,7 @@ class LokiRun:
                            if type(b.behavior).__name__ != "PenetrationCheck"]
         self.scene = scene
         self.threads = threads
+        self.overrides = overrides or {}
         self.setting = (f"{substeps}x{iterations}" + (f"@{threads}t" if threads else "")
                         + "".join(f" {k}={v}" for k, v in (overrides or {}).items()) + label)
         self.solver = "nucleus"
@@ -1006,7 +1007,8 @@ def main(argv=None):
         runs = [LokiRun(sc, *st[:2], label=(" static" if sc.path == SCENES[128] else
                                             " moving" if sc.path == MOVING else
                                             f" {sc.path.stem}"),
-                        threads=st[2] if len(st) > 2 else None) for st in loki for sc in scenes]
+                        threads=st[2] if len(st) > 2 else None, overrides=ov)
+                for st, ov in zip(loki, extra) for sc in scenes]
         for name in args.moving_flag or ():  # the moving scenes again with a contacts flag on
             runs += [LokiRun(sc, *st[:2], label=f" {sc.path.stem} {name}",
                              threads=st[2] if len(st) > 2 else None, flags=_flags(name))
@@ -1019,9 +1021,12 @@ def main(argv=None):
         if args.stages:
             install_stages(len(scenes[0].cloth_q0))
         rows = run_interleaved(runs, frames)
-        for r in rows:  # CPU per frame against the static scene at the same setting
-            base = next((b for b in rows if b["setting"].split(" ")[0] ==
-                         r["setting"].split(" ")[0] and b["scene"] == SCENES[128].name), None)
+        # the static run of each setting (its SUBxITER and graph overrides) is the base
+        key = [str((run.setting.split(" ")[0], sorted(run.overrides.items())))
+               for run in runs]
+        for r, k in zip(rows, key):  # CPU per frame against the static scene, same setting
+            base = next((b for b, kb in zip(rows, key) if kb == k
+                         and b["scene"] == SCENES[128].name), None)
             if base and base.get("cpu_ms") and r.get("cpu_ms"):
                 r["ratio"] = r["cpu_ms"] / base["cpu_ms"]
                 r["ratio_mean"] = (np.mean([v["cpu_ms"] for v in r["per_frame"][1:]]) /
