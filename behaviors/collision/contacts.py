@@ -2565,26 +2565,26 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
             return st
         cv = _toi_contacts(c, work, hv[0], hv[1], True, x, p) if len(hv[0]) else None
         ce = _toi_contacts(c, work, he[0], he[1], False, x, p) if len(he[0]) else None
-        for _it in range(n_it):
-            if joint_step is not None:
-                joint_step(p)
+
+        def toi_pass():
+            """One pass over the contacts at the time of impact."""
             if cv is not None:
                 project_vf(p, x, w, cv[0], cv[1], cv[2], cv[3], cv[4], c.damping, cv[5],
                            sl_ccd if CCD_SLIDE else 0)
             if ce is not None:
                 project_ee(p, x, w, ce[0], ce[1], ce[2], ce[3], ce[4], c.damping,
                            sl_ccd if CCD_SLIDE else 0)
+
+        for _it in range(n_it):
+            if joint_step is not None:
+                joint_step(p)
+            toi_pass()
             _project_contacts(c, p, x, w, sl_ccd)
         # polish (``CCD_POLISH``): the strain limit with the contacts at the time of impact
         # alone; the pass over every row above ends each round with the cloth stretched
         for _it in range(CCD_POLISH if joint_step is not None else 0):
             joint_step(p)
-            if cv is not None:
-                project_vf(p, x, w, cv[0], cv[1], cv[2], cv[3], cv[4], c.damping, cv[5],
-                           sl_ccd if CCD_SLIDE else 0)
-            if ce is not None:
-                project_ee(p, x, w, ce[0], ce[1], ce[2], ce[3], ce[4], c.damping,
-                           sl_ccd if CCD_SLIDE else 0)
+            toi_pass()
         hv, he = hits()
     if not len(hv[0]) and not len(he[0]):
         return st
