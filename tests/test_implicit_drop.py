@@ -9,10 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from lokigraph.behaviors.solvers.implicit.contact import (extend_live, extend_live_moved,
-                                                          lag_rows, lag_rows_live, lag_rows_sel,
-                                                          row_energy, start_targets,
-                                                          start_targets_on)
+from lokigraph.behaviors.solvers.implicit.contact import (extend_live, lag_rows, lag_rows_live,
+                                                          lag_rows_sel, row_energy,
+                                                          start_targets, start_targets_on)
 from lokigraph.behaviors.solvers.implicit.energy import limit_energy
 
 
@@ -115,7 +114,7 @@ def test_lag_after_a_line_search_visits_only_the_listed_rows():
 
 
 def test_moved_extension_keeps_the_same_rows():
-    """extend_live_moved toward a point that differs from x0 only at flagged (Dirichlet)
+    """extend_live with ``moved`` toward a point that differs from x0 only at flagged (Dirichlet)
     vertices, after lag_rows_live at x0 (start_at_rest's extension): bitwise what extend_live
     gives (marks, live list, coefficients, stiffnesses, normal forces), with rows joining
     there and most rows never visited (the test can fail both ways)."""
@@ -156,8 +155,7 @@ def test_moved_extension_keeps_the_same_rows():
         xr = x0.copy()
         xr[fixed, 1] += 0.05  # the Dirichlet vertices rise into the upper layer
         na = extend_live(xr, x0, fixed, mass, 100.0, rows, nrm, tgt, is_vf, *a)
-        nb = extend_live_moved(xr, x0, fixed.copy(), fixed, mass, 100.0, rows, nrm, tgt,
-                               is_vf, *b)
+        nb = extend_live(xr, x0, fixed, mass, 100.0, rows, nrm, tgt, is_vf, *b, fixed.copy())
         assert ns0 < na == nb < m // 2
         for u, w in zip(a, b):
             assert np.array_equal(u, w)

@@ -13,7 +13,7 @@ first contact frame, also loads the collision kernels in whichever simulation ru
 the means over frames 7.. are the comparison.
 
 Measured against 4c1e992 (commit ac3977d: the second lag at x^n through ``lag_rows_sel``,
-start_at_rest's extension through ``extend_live_moved``, skipped for the static ball), 1 thread,
+start_at_rest's extension through ``extend_live`` with ``moved``, skipped for the static ball), 1 thread,
 the shared 2-core machine at load 4-6, positions and velocities bitwise equal in every frame;
 CPU ms per frame over frames 7..N, before / after (``lag``: the row lags and extensions):
 

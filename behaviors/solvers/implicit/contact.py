@@ -377,38 +377,29 @@ def lag_rows_sel(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r
     return count, ns, dl, top, dgap
 
 
+_ALL_MOVED = np.zeros(0, np.bool_)  # ``extend_live``: no ``moved`` flags, every row tested
+
+
 @njit(cache=True)
-def extend_live(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, mark, sel):
+def extend_live(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, mark, sel,
+                moved=_ALL_MOVED):
     """Before a line search from x toward xb (or an energy evaluation at xb with the rows
     lagged at x): the rows not live at x (``mark`` 0) whose gap bound is below
     ``LIVE_SLACK`` at xb join the live rows, lagged at x (their normal force there is 0);
     ``sel`` is rebuilt in ascending row order (the order of the sums of ``row_energy``). Rows
     still not live have C >= 0 on the whole segment (``_gap_bound``). Returns the number of
-    live rows."""
-    ns = 0
-    for r in range(rows.shape[0]):
-        if mark[r] == 0 and _gap_bound(xb, rows, nrm, target, is_vf, r) < LIVE_SLACK:
-            _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
-            mark[r] = 1
-        if mark[r]:
-            sel[ns] = r
-            ns += 1
-    return ns
+    live rows.
 
-
-@njit(cache=True)
-def extend_live_moved(xb, x, moved, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam,
-                      mark, sel):
-    """``extend_live`` when xb differs from x only at the vertices flagged in ``moved`` and
-    every row not live (``mark`` 0) has a gap bound of at least ``LIVE_SLACK`` at x (as after
-    ``lag_rows_live`` or ``extend_live`` at x): a row none of whose vertices moved has bitwise
-    the same gap bound at xb as at x, so it stays out without its bound being formed; the
-    others are tested as ``extend_live`` tests them. The same marks, lags and ``sel``.
-    Returns the number of live rows."""
+    ``moved`` (bool per vertex, or empty: all): xb differs from x only at the flagged
+    vertices, and every row not live has a gap bound of at least ``LIVE_SLACK`` at x (as after
+    ``lag_rows_live`` or this at x); a row none of whose vertices moved then has bitwise the
+    same gap bound at xb as at x and stays out without its bound being formed. The same
+    marks, lags and ``sel`` as without ``moved``."""
     ns = 0
+    some = moved.shape[0] > 0
     for r in range(rows.shape[0]):
-        if mark[r] == 0 and (moved[rows[r, 0]] or moved[rows[r, 1]] or moved[rows[r, 2]]
-                             or moved[rows[r, 3]]):
+        if mark[r] == 0 and (not some or moved[rows[r, 0]] or moved[rows[r, 1]]
+                             or moved[rows[r, 2]] or moved[rows[r, 3]]):
             if _gap_bound(xb, rows, nrm, target, is_vf, r) < LIVE_SLACK:
                 _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
                 mark[r] = 1

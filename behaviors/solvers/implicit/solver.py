@@ -172,9 +172,9 @@ from lokigraph.errors import InputError
 
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
-from .contact import (contact_energy_al, extend_live, extend_live_moved, lag_contacts_al,
-                      lag_rows, lag_rows_live, lag_rows_sel, mark_closing, row_energy,
-                      row_energy_coupled, row_residuals, safety_project, start_targets_on,
+from .contact import (_ALL_MOVED, contact_energy_al, extend_live, lag_contacts_al, lag_rows,
+                      lag_rows_live, lag_rows_sel, mark_closing, row_energy, row_energy_coupled,
+                      row_residuals, safety_project, start_targets_on,
                       update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, gather_blocks, gather_map, limit_energy
 from .compliant import compliant_edges, shape_energy
@@ -1083,15 +1083,12 @@ class ImplicitSolver(Behavior):
         """Before a line search from x toward xb: the rows live somewhere on the segment join
         the live rows, lagged at x (``extend_live``). ``moved`` (bool per vertex): xb differs
         from x only there, and every row not live has its gap bound >= ``LIVE_SLACK`` at x
-        (``extend_live_moved``: the same result)."""
+        (only rows with a moved vertex are tested: the same result)."""
         h2k = self.params.contact_stiffness / (ctx.dt * ctx.dt)
+        mv = _ALL_MOVED if moved is None else moved
         for rows, nrm, tgt, mu, coef, kr, lam, _lp, is_vf, mark, sel, ns in d.rows["sets"]:
-            if moved is not None:
-                ns[0] = extend_live_moved(xb, x, moved, d.cur_fixed, ctx.model.particle_mass,
-                                          h2k, rows, nrm, tgt, is_vf, coef, kr, lam, mark, sel)
-                continue
             ns[0] = extend_live(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k, rows, nrm,
-                                tgt, is_vf, coef, kr, lam, mark, sel)
+                                tgt, is_vf, coef, kr, lam, mark, sel, mv)
 
     def _row_residuals(self, ctx, d, x, xt):
         """The contact rows' complementarity residuals at the Newton solution x into the
@@ -1177,7 +1174,7 @@ class ImplicitSolver(Behavior):
                     np.copyto(xr, w["x0"])
                     np.copyto(xr, xs, where=fixed[:, None])
                     # xr is x^n but at the Dirichlet vertices: only rows with a vertex that
-                    # moved there can join (``extend_live_moved``; none when none moved)
+                    # moved there can join (``extend_live`` with ``moved``; none when none moved)
                     moved = fixed & (xr != w["x0"]).any(axis=1)
                     if moved.any():
                         self._extend_live(ctx, d, xr, w["x0"], moved)
