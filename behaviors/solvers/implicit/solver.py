@@ -115,7 +115,10 @@ attachments are inequality or global constraints. They are applied, as the Nucle
 final rounds do, by a projection pass on the end-of-step positions after the Newton solve
 (``projection_iterations`` Gauss-Seidel passes of their ``project``, then ``finalize`` and
 ``after_finalize``: the collision final rounds re-detect over the solved motion), and v is then
-(x' - x^n) / h. Strain limits here cannot push back on the elastic solve of the same step.
+(x' - x^n) / h. Strain limits are also rows of the Newton solve (``strain_limit.implicit:
+energy``, the default: one-sided augmented-Lagrangian rows, ``strain_limit.py``'s implicit
+energy), so they push back on the elastic and contact terms of the same step; the projection
+pass then only cleans up (with ``implicit: projection`` it is the limit's only pass).
 Tethers (``TetherConstraint``, a Gauss-Seidel convergence aid for inextensible
 materials) are not used: the Newton solve carries the stretch stiffness across the mesh. Any
 other constraint type bound in an implicit scene that has no energy is an error at
@@ -708,10 +711,13 @@ class ImplicitSolver(Behavior):
                 continue
             if hasattr(b, "energy") and hasattr(b, "energy_stencils"):
                 st = [np.ascontiguousarray(s, dtype=np.int64) for s in b.energy_stencils(ctx, bd)]
+                if not st and name in PROJECTED_TYPES:  # not in the solve in this scene
+                    projected.append((b, bd))  # (strain limits' ``implicit: projection``)
+                    continue
                 energies.append([b, bd, st])
                 stencils.extend(st)
-                if hasattr(b, "implicit_project"):
-                    projected.append((b, bd))
+                if hasattr(b, "implicit_project") or name in PROJECTED_TYPES:
+                    projected.append((b, bd))  # safety projection after the solve
             elif name in PROJECTED_TYPES:
                 projected.append((b, bd))
             elif name in NOT_NEEDED:
