@@ -5,57 +5,19 @@ kinematic ball, eps_e = 0.1) with ``solver: implicit`` at one substep per frame.
 import numpy as np
 import pytest
 
+from conftest import write_scene
 from lokigraph.api import compile_file
-from lokigraph.behaviors.collision.intersect import intersect_meshes
-from lokigraph.behaviors.topology import triangle_edges
 from lokigraph.run import Simulation
-
-ENDS = ", ".join([str(j * 21) for j in range(21)] + [str(j * 21 + 20) for j in range(21)])
+from test_strain_limit import measure, pushed_cloth
 
 
 def _scene(scene_file, mode, implicit, frames, name):
-    return scene_file(f"""
-    lokigraph: 1
-    solver: implicit
-    frames: {{start: 1, end: {frames + 1}, fps: 24}}
-    substeps: 1
-    graph_overrides: {{strain_limit: {{mode: {mode}, importance: 1.0, implicit: {implicit}}}}}
-    elements:
-      - name: cloth
-        geometry: {{generator: grid, params: {{size: [0.6, 0.6], resolution: [20, 20], plane: xz}}}}
-        channels: {{ends: {{vertices: [{ENDS}]}}}}
-        components:
-          Dynamic: {{mass_density: 0.3, damping: 1.0}}
-          DiscreteShell: {{youngs_modulus: 300.0, thickness: 1.0e-3, max_strain: 0.1, bend_resistance: 1.0e-6}}
-          Pins: {{map: ends}}
-          Collider: {{thickness: 0.002, friction: 0.0}}
-      - name: ball
-        geometry: {{generator: sphere, params: {{radius: 0.1, subdivisions: 3, center: [0, -0.3, 0]}}}}
-        components:
-          Kinematic: {{keys: [{{frame: 1}}, {{frame: 25, translate: [0, 0.2, 0]}}]}}
-          Collider: {{thickness: 0.002, friction: 0.0}}
-      - name: contact
-        components: {{CollisionGroup: {{members: [cloth, ball], methods: [vertex_face, edge_edge]}}}}
-    """, name)
+    return scene_file(pushed_cloth(mode, frames=frames, substeps=1, head="solver: implicit\n    ",
+                                   overrides=f", implicit: {implicit}"), name)
 
 
 def _run(scene_file, mode, implicit, frames=36):
-    c = compile_file(_scene(scene_file, mode, implicit, frames, f"{mode}_{implicit}.yaml"))
-    sim = Simulation(c)
-    cl, b = c.scene.element("cloth"), c.scene.element("ball")
-    E = triangle_edges(cl.geometry.triangles)
-    X = cl.geometry.points
-    L0 = np.linalg.norm(X[E[:, 1]] - X[E[:, 0]], axis=1)
-    strain, pen, stats = [], [], []
-    for _ in range(frames):
-        stats.append(sim.step_frame())
-        q = sim.state.particle_q
-        qc = q[cl.vertex_slice]
-        strain.append((np.linalg.norm(qc[E[:, 1]] - qc[E[:, 0]], axis=1) / L0 - 1).max())
-        _, rows = intersect_meshes([(qc, cl.geometry.triangles),
-                                    (q[b.vertex_slice], b.geometry.triangles)], touching=False)
-        pen.append(int((rows[:, 0] != rows[:, 2]).sum()))
-    return np.array(strain), np.array(pen), sim, stats
+    return measure(_scene(scene_file, mode, implicit, frames, f"{mode}_{implicit}.yaml"), frames)
 
 
 @pytest.fixture(scope="module")
@@ -63,10 +25,7 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("implicit_sl")
 
     def scene_file(text, name):
-        p = root / name
-        p.write_text("\n".join(line[4:] if line.startswith("    ") else line
-                               for line in text.splitlines()))
-        return p
+        return write_scene(root, text, name)
 
     return {k: _run(scene_file, *k) for k in [("constitutive", "energy"),
                                                ("constitutive", "projection"),
@@ -118,10 +77,7 @@ def test_resume_carries_the_multipliers(tmp_path):
     from lokigraph import checkpoint
 
     def scene_file(text, name):
-        p = tmp_path / name
-        p.write_text("\n".join(line[4:] if line.startswith("    ") else line
-                               for line in text.splitlines()))
-        return p
+        return write_scene(tmp_path, text, name)
 
     path = _scene(scene_file, "constitutive", "energy", 16, "resume.yaml")
     a = Simulation(compile_file(path))
