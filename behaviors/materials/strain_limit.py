@@ -511,6 +511,8 @@ class _Limits:
     lam: np.ndarray | None = None  # the implicit energy rows' multipliers [N] (``implicit``)
     energy_on: bool = False  # the limit is a row set of the implicit solve (``implicit``)
     stat_key: tuple | None = None  # (frame, substep) of the last ``limit_stats``
+    e_alpha: np.ndarray | None = None  # the energy rows' compliances (0: hard) ...
+    e_alpha2: np.ndarray | None = None  # ... and compressed ones (inf: tension only)
     glob: object = None
     pinch: tuple | None = None  # count_pinched's scratch (first normals, seen flags, cloth mask)
 
@@ -668,7 +670,7 @@ class StrainLimitConstraint(ConstraintBehavior):
 # ==============================================================================================
 # Implicit energy (behaviors/solvers/implicit/energy.py has the protocol)
 # ==============================================================================================
-# With the implicit solver's ``strain_limit: energy`` each limited edge is a one-sided augmented
+# With ``StrainLimitParams.implicit`` 'energy' (the default) each limited edge is a one-sided augmented
 # Lagrangian row of the Newton solve itself (Loki supplement eq. 8-10 as a penalty row, as the
 # contacts there are): ``C = |x_a - x_b| - (1 + eps_e) L0 <= 0``, the force ``f = max(0, lam +
 # k C)`` with ``k`` the hard penalty of its vertices (``hard_stiffness`` m / h^2) and ``lam`` the
