@@ -2412,6 +2412,12 @@ def _moved_norms(p, ref, out):
 #: than the swept ones (grid queries 102 + 168 -> 117 + 206 ms on that detection; whole run
 #: 1.02x, bitwise equal)
 CCD_INCREMENTAL = 0.02
+#: the safe step's check after each round of contacts at the time of impact first tries the
+#: rows of the safe step's last detection (over x -> a copy of p then, ``det_ref``) plus an
+#: incremental query, as ``CCD_INCREMENTAL``'s first check: when these give no hit the safe
+#: step ends (a full detection would give none either); otherwise (a hit, too many moved
+#: vertices, side memory) the full detection runs as before. Positions bitwise those of False.
+CCD_ROUND_INCREMENTAL = True
 
 
 def _ccd_incremental(c, work, x, p, v, h, frac):
@@ -2549,6 +2555,11 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
         if detect:
             _detect_all(c, x, p, v, h, SPACETIME)
             st["ccd_detections"] = st.get("ccd_detections", 0) + 1
+            if CCD_ROUND_INCREMENTAL:  # the rows now cover x -> (a copy of) p
+                if c.p_det is None or c.p_det.shape != p.shape:
+                    c.p_det = np.empty_like(p)
+                c.p_det[:] = p
+                c.det_ref = c.p_det
         hv = _ccd_hits(work, c.vf, c.vf_n, c.vf_target, True, x, p, frac)
         he = _ccd_hits(work, c.ee, c.ee_n, c.ee_target, False, x, p, frac)
         return hv, he
@@ -2585,6 +2596,9 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
         for _it in range(CCD_POLISH if joint_step is not None else 0):
             joint_step(p)
             toi_pass()
+        if CCD_ROUND_INCREMENTAL and _ccd_incremental(c, work, x, p, v, h, frac):
+            st["ccd_round_incremental"] = st.get("ccd_round_incremental", 0) + 1
+            return st  # no hit left: a full detection would find none either
         hv, he = hits()
     if not len(hv[0]) and not len(he[0]):
         return st
