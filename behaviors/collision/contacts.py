@@ -2411,7 +2411,7 @@ def _moved_norms(p, ref, out):
 #: the mean motion (2, -19, 3 mm in frame 9) shrinks no box, and the loose boxes are larger
 #: than the swept ones (grid queries 102 + 168 -> 117 + 206 ms on that detection; whole run
 #: 1.02x, bitwise equal)
-CCD_INCREMENTAL = 0.02
+CCD_INCREMENTAL = 0.05
 #: the safe step's check after each round of contacts at the time of impact first tries the
 #: rows of the safe step's last detection (over x -> a copy of p then, ``det_ref``) plus an
 #: incremental query, as ``CCD_INCREMENTAL``'s first check: when these give no hit the safe
