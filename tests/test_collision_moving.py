@@ -95,3 +95,27 @@ def test_incremental_ccd_check_finds_the_hits_of_a_full_detection(scene_file, mo
         sim.step_frame()
     assert seen["inc"] > 0
 
+
+
+def test_round_incremental_ccd_check_is_bitwise_and_taken(scene_file, monkeypatch):
+    """``contacts.CCD_ROUND_INCREMENTAL``: the safe step's check after a round of contacts at
+    the time of impact tries the last detection's rows plus an incremental query first; the
+    positions must be bitwise those of a full detection there, and the path must be taken (the
+    spinning sphere gives safe steps with hits)."""
+    monkeypatch.setattr(C, "SLIDE_APART", 0)
+    frames = 11
+    path = _moving_scene(scene_file, 48, frames)
+    inc = C.CCD_INCREMENTAL or 0.05
+    monkeypatch.setattr(C, "CCD_ROUND_INCREMENTAL", False)
+    q0, s0 = _run(path, frames, inc, monkeypatch)
+    monkeypatch.setattr(C, "CCD_ROUND_INCREMENTAL", True)
+    q1, s1 = _run(path, frames, inc, monkeypatch)
+    for f, (a, b) in enumerate(zip(q0, q1), 1):
+        assert np.array_equal(a, b), f"frame {f}: positions differ"
+    taken = sum(s.get("ccd_round_incremental", 0) for s in s1)
+    full0 = sum(s.get("ccd_detections", 0) for s in s0)
+    full1 = sum(s.get("ccd_detections", 0) for s in s1)
+    assert taken > 0, "the incremental check after a round was never taken"
+    assert full1 <= full0 - taken, (full0, full1, taken)
+    assert all(s.get("ccd_round_incremental", 0) == 0 for s in s0)
+    assert max(s.get("penetrations", 0) for s in s1) == 0
