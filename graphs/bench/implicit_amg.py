@@ -30,18 +30,26 @@ Measured (the shared 2-core machine, load 3-5, 1 thread; block_jacobi the defaul
         additive:tentative:2 v:tentative:2
 
     variant                               CPU s    cg s  Newton   CG it  halv strain% self ball
-    block_jacobi                          54.66   26.47      80   33776   127    3.32    0    0
-    additive:tentative:2                  43.67   15.47      80    9754   122    4.53    0    0
-    v:tentative:2                         45.66   16.33      80    3824   118    5.13    0    0
+    block_jacobi                          60.42   25.89      80   33776   127    3.32    0    0
+    additive:tentative:2                  42.15   12.57      80    8729   118    4.38    0    0
+    v:tentative:2                         44.34   15.70      80    4068   120    6.06    0    0
 
-(frames 6-9, the impact; per frame the linear solves take 3.8-8.0 s with block_jacobi, 2.6-4.8 s
-with the additive cycle). ``drop 64 12 --from 6`` (frames 6-12): cg s 10.22 / 7.04 / 8.21, CG
-iterations 48,369 / 19,689 / 8,735, strain 4.45 / 3.54 / 2.85 %, 0 intersecting pairs.
-``systems`` on the 128x128 drop's Newton systems of frames 7-8 (saved with every Newton iteration:
-40 systems): block_jacobi 19,257 CG iterations, 14.9 s; additive:tentative:2 5,378, 8.2 s;
-v:tentative:2 2,427, 9.0 s; additive:smoothed:2 4,435, 9.0 s; additive:tentative:0 (rebuilt
-every substep) 5,385, 8.2 s. The strain moves both ways with the linear solve (Newton stops at
-its cap of 20 in every impact substep with each), so amg_reuse stays opt-in.
+(frames 6-9, the impact; per frame the linear solves take 3.7-7.6 s with block_jacobi, 2.2-3.5 s
+with the additive cycle; the frames' other phases are the same code, their CPU noisy under the
+load). Two earlier runs of the same command, with the same cycles before two changes that only
+move rounding (the coarse matrices refreshed lazily, the coarsest inverse by potri), gave cg s
+26.47 / 16.03 / 17.50 and 26.47 / 15.47 / 16.33, worst strain 3.32 / 6.08 / 5.13 % and 3.32 /
+4.53 / 5.13 %: the strain at 128x128 moves both ways with the linear solve.
+``drop 64 12 --from 6`` (frames 6-12): cg s
+10.22 / 7.04 / 8.21, CG iterations 48,369 / 19,689 / 8,735, strain 4.45 / 3.54 / 2.85 %, 0
+intersecting pairs. ``systems`` on the 128x128 drop's Newton systems of frames 7-8 (saved with
+every Newton iteration: 40 systems, as ``implicit_cost.py 128 8 --save 7:1:f07_01.npz ...
+--save 8:20:f08_20.npz`` writes them): block_jacobi 19,257 CG iterations, 15.3 s;
+additive:tentative:2 5,370, 7.5 s; v:tentative:2 2,427, 9.5 s; additive:smoothed:2 4,439,
+9.2 s; additive:tentative:0 (rebuilt every substep) 5,369, 7.5 s. The previous Newton step as
+CG's initial guess (additive cycle, same systems) saves 9 % of the iterations (5,376 -> 4,897;
+half that step 5,102): not taken. Newton stops at its cap of 20 in every impact substep with
+each preconditioner, so amg_reuse stays opt-in.
 """
 
 from __future__ import annotations
@@ -148,6 +156,8 @@ def systems(pattern, variants):
         w = {k: np.zeros((n, 3)) for k in ("r", "z", "p", "Ap")}
         x = np.zeros((n, 3))
         inv = np.zeros((n, 3, 3))
+        for _ in range(3):  # touch the loaded matrix first: its first pass pays page faults,
+            L.bsr_matvec(A.indptr, A.indices, A.data, b, x)  # which the solver's does not
         t0 = time.process_time()
         L.invert_blocks(A.data[z["diag"]], inv)
         it, res = L.pcg_block_jacobi(A.indptr, A.indices, A.data, inv, b, 1e-3, 500, x,

@@ -11,11 +11,14 @@ iterations). Keeping only the aggregation (the prolongators P) and refreshing th
 P^T A P and the smoothers' diagonal blocks from every Newton matrix works: on the 128 x 128
 drop's impact systems (frames 7-8, 40 Newton systems) with an aggregation from the first one,
 rebuilt when a solve's iterations double, block-Jacobi takes 19,257 CG iterations (many at the
-500 cap, short of cg_tolerance 1e-3) in 14.9 s, the additive cycle 5,378 iterations (every solve
-to 1e-3) in 8.2 s, the V-cycle with block Gauss-Seidel 2,427 in 9.0 s, smoothed-aggregation
-prolongators 4,435 in 9.0 s (graphs/bench/implicit_amg.py systems); one pass of the matrix costs
+500 cap, short of cg_tolerance 1e-3) in 15.3 s, the additive cycle 5,370 iterations (every solve
+to 1e-3) in 7.5 s, the V-cycle with block Gauss-Seidel 2,427 in 9.5 s, smoothed-aggregation
+prolongators 4,439 in 9.2 s (graphs/bench/implicit_amg.py systems); one pass of the matrix costs
 the same in each, so the additive cycle (one matrix read a CG iteration plus the coarse levels,
-~1.1 ms against block-Jacobi's 0.75 ms) wins over the V-cycle (three reads, ~3.5 ms).
+~1.1 ms against block-Jacobi's 0.75 ms) wins over the V-cycle (three reads, ~3.5 ms). The
+coarsest level (pyamg's max_coarse 300 nodes: 165 at 128 x 128) is inverted once per refresh
+(LAPACK potri) and applied as one dense product; a smaller coarsest level (max_coarse 50-150: a
+fourth level of 20 nodes) took 17 % more iterations and 5 % more time.
 
 The block-Jacobi PCG runs in one compiled loop (``pcg_block_jacobi_after``); with ``PARALLEL_PCG``
 (opt-in) on more than one numba thread its vertex loops run in ``prange``
@@ -605,7 +608,12 @@ class AggregationReuse:
         Ac[zero, zero] = 1.0
         # the coarsest level's inverse, explicitly (a few hundred unknowns: one dense product
         # per cycle is cheaper than the triangular solves' call overhead)
-        self.coarse = sla.cho_solve(sla.cho_factor(Ac), np.eye(len(Ac)))
+        c, info = sla.lapack.dpotrf(Ac, lower=False)
+        if info == 0:
+            c, info = sla.lapack.dpotri(c, lower=False)  # the inverse from its factor
+        if info != 0:
+            raise np.linalg.LinAlgError(f"coarsest matrix not positive definite ({info})")
+        self.coarse = np.triu(c) + np.triu(c, 1).T
 
     def vcycle(self, r, z, k0=0):
         """z = the V-cycle from level ``k0`` applied to r ((n, 3) arrays of that level)."""

@@ -300,12 +300,15 @@ class ImplicitParams(Params):
         "amg_smooth, amg_rebuild_growth), or none (plain CG, for comparison; measured in "
         "graphs/bench/implicit_precond.py). amg_reuse measured with graphs/bench/implicit_amg.py "
         "(cloth-on-sphere at 1 substep, interleaved in one process, 1 thread; block_jacobi / "
-        "amg_reuse additive / v): 128x128 impact frames 6-9, CPU s of the linear solves 26.5 / "
-        "15.5 / 16.3, of the frames 54.7 / 43.7 / 45.7, CG iterations 33,776 / 9,754 / 3,824, "
-        "Newton at its cap (80) in each, worst edge strain 3.32 / 4.53 / 5.13 %; 64x64 frames "
+        "amg_reuse additive / v): 128x128 impact frames 6-9, CPU s of the linear solves 25.9 / "
+        "12.6 / 15.7, of the frames 60.4 / 42.2 / 44.3, CG iterations 33,776 / 8,729 / 4,068, "
+        "Newton at its cap (80) in each, worst edge strain 3.32 / 4.38 / 6.06 %; 64x64 frames "
         "6-12 CG s 10.2 / 7.0 / 8.2, strain 4.45 / 3.54 / 2.85 %; 0 intersecting pairs in every "
-        "frame of each. Opt-in: the strain moves both ways with the linear solve (Newton stops "
-        "at its cap at impact), and the V-cycle passed the 5 % bound at 128x128.")
+        "frame of each. graphs/bench/implicit_precond.py (6 frames, ms/frame CPU, block_jacobi / "
+        "amg_reuse): drape_64 2,056 / 1,238, cloth_sphere_32 966 / 306, pinch 87 / 95, elastica "
+        "and catenary 2 / 7 (one CG iteration: the coarsest level solves them). Opt-in: the "
+        "strain moves both ways with the linear solve (Newton stops at its cap at impact; an "
+        "earlier run of the additive cycle reached 6.08 % at 128x128, the V-cycle 5.13-6.06 %).")
     amg_cycle: Literal["additive", "v"] = Field(
         "additive", description="preconditioner: amg_reuse: 'additive' the finest level's "
         "block-Jacobi plus the coarse levels' V-cycle on the restricted residual (one matrix "
