@@ -456,6 +456,18 @@ def bsr_gs_sweep(indptr, indices, data, dinv, b, x, backward, from_zero):
         x[i, 2] = dinv[i, 2, 0] * s0 + dinv[i, 2, 1] * s1 + dinv[i, 2, 2] * s2
 
 
+@njit(cache=True, inline="always")
+def _restrict_row(pptr, pind, p9, i, r0, r1, r2, rc):
+    """rc += P_i^T (r0, r1, r2): fine row i's part of the restriction P^T r (P: BSR, 3x3
+    blocks, fine rows; ``p9`` its data's flat view)."""
+    for q in range(pptr[i], pptr[i + 1]):
+        j = pind[q]
+        o = 9 * q
+        rc[j, 0] += p9[o] * r0 + p9[o + 3] * r1 + p9[o + 6] * r2
+        rc[j, 1] += p9[o + 1] * r0 + p9[o + 4] * r1 + p9[o + 7] * r2
+        rc[j, 2] += p9[o + 2] * r0 + p9[o + 5] * r1 + p9[o + 8] * r2
+
+
 @njit(cache=True)
 def bsr_residual_restrict(indptr, indices, data, b, x, pptr, pind, pdata, rc):
     """rc = P^T (b - A x): the residual of the fine level restricted by the prolongator P
@@ -468,12 +480,7 @@ def bsr_residual_restrict(indptr, indices, data, b, x, pptr, pind, pdata, rc):
         r0 = b[i, 0] - y0
         r1 = b[i, 1] - y1
         r2 = b[i, 2] - y2
-        for q in range(pptr[i], pptr[i + 1]):
-            j = pind[q]
-            o = 9 * q
-            rc[j, 0] += p9[o] * r0 + p9[o + 3] * r1 + p9[o + 6] * r2
-            rc[j, 1] += p9[o + 1] * r0 + p9[o + 4] * r1 + p9[o + 7] * r2
-            rc[j, 2] += p9[o + 2] * r0 + p9[o + 5] * r1 + p9[o + 8] * r2
+        _restrict_row(pptr, pind, p9, i, r0, r1, r2, rc)
 
 
 @njit(cache=True)
@@ -485,12 +492,7 @@ def bsr_tmatvec(pptr, pind, pdata, r, rc):
         r0 = r[i, 0]
         r1 = r[i, 1]
         r2 = r[i, 2]
-        for q in range(pptr[i], pptr[i + 1]):
-            j = pind[q]
-            o = 9 * q
-            rc[j, 0] += p9[o] * r0 + p9[o + 3] * r1 + p9[o + 6] * r2
-            rc[j, 1] += p9[o + 1] * r0 + p9[o + 4] * r1 + p9[o + 7] * r2
-            rc[j, 2] += p9[o + 2] * r0 + p9[o + 5] * r1 + p9[o + 8] * r2
+        _restrict_row(pptr, pind, p9, i, r0, r1, r2, rc)
 
 
 @njit(cache=True)
@@ -751,12 +753,7 @@ def _cg_update_jacobi_restrict(x, r, p, Ap, al, dinv, z, pptr, pind, pdata, rc):
         z[i, 0] = dinv[i, 0, 0] * r0 + dinv[i, 0, 1] * r1 + dinv[i, 0, 2] * r2
         z[i, 1] = dinv[i, 1, 0] * r0 + dinv[i, 1, 1] * r1 + dinv[i, 1, 2] * r2
         z[i, 2] = dinv[i, 2, 0] * r0 + dinv[i, 2, 1] * r1 + dinv[i, 2, 2] * r2
-        for q in range(pptr[i], pptr[i + 1]):
-            j = pind[q]
-            o = 9 * q
-            rc[j, 0] += p9[o] * r0 + p9[o + 3] * r1 + p9[o + 6] * r2
-            rc[j, 1] += p9[o + 1] * r0 + p9[o + 4] * r1 + p9[o + 7] * r2
-            rc[j, 2] += p9[o + 2] * r0 + p9[o + 5] * r1 + p9[o + 8] * r2
+        _restrict_row(pptr, pind, p9, i, r0, r1, r2, rc)
     return rr
 
 
