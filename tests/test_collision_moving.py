@@ -96,7 +96,6 @@ def test_incremental_ccd_check_finds_the_hits_of_a_full_detection(scene_file, mo
     assert seen["inc"] > 0
 
 
-
 def test_round_incremental_ccd_check_is_bitwise_and_taken(scene_file, monkeypatch):
     """``contacts.CCD_ROUND_INCREMENTAL``: the safe step's check after a round of contacts at
     the time of impact tries the last detection's rows plus an incremental query first; the
