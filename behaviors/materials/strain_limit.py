@@ -510,7 +510,6 @@ class _Limits:
     color_ptr: np.ndarray
     lam: np.ndarray | None = None  # the implicit energy rows' multipliers [N] (``implicit``)
     energy_on: bool = False  # the limit is a row set of the implicit solve (``implicit``)
-    stat_key: tuple | None = None  # (frame, substep) of the last ``limit_stats``
     e_alpha: np.ndarray | None = None  # the energy rows' compliances (0: hard) ...
     e_alpha2: np.ndarray | None = None  # ... and compressed ones (inf: tension only)
     glob: object = None
@@ -570,6 +569,10 @@ class StrainLimitConstraint(ConstraintBehavior):
         d = _Limits(np.ascontiguousarray(edges[perm]), np.ascontiguousarray(limit[perm]), ptr)
         d.energy_on = (getattr(ctx.scene.spec, "solver", "nucleus") == "implicit"
                        and self.params.implicit == "energy" and self.params.mode == "constitutive")
+        if d.energy_on:  # tension-only hard rows at the limit's length (the energy section)
+            d.lam = np.zeros(len(d.edges))
+            d.e_alpha = np.zeros(len(d.edges))
+            d.e_alpha2 = np.full(len(d.edges), np.inf)
         sel = np.flatnonzero(np.concatenate(shell)[perm])
         if self._global_passes > 0 and self.params.mode == "constitutive" and len(sel):
             from .strain_limit_global import GlobalStrainStep
@@ -652,8 +655,7 @@ class StrainLimitConstraint(ConstraintBehavior):
                                                     d.glob.stats["passes"] - n0)
 
     def after_finalize(self, ctx, d, p):
-        if d is not None and d.energy_on and d.stat_key != (ctx.frame, ctx.substep):
-            d.stat_key = (ctx.frame, ctx.substep)  # (called twice a substep by the solver)
+        if d is not None and d.energy_on:
             limit_stats(self, ctx, d, p)
         if self.params.mode == "post":
             for _ in range(self.params.post_iterations):
@@ -670,8 +672,8 @@ class StrainLimitConstraint(ConstraintBehavior):
 # ==============================================================================================
 # Implicit energy (behaviors/solvers/implicit/energy.py has the protocol)
 # ==============================================================================================
-# With ``StrainLimitParams.implicit`` 'energy' (the default) each limited edge is a one-sided augmented
-# Lagrangian row of the Newton solve itself (Loki supplement eq. 8-10 as a penalty row, as the
+# With ``StrainLimitParams.implicit`` 'energy' (the default) each limited edge is a one-sided
+# augmented Lagrangian row of the Newton solve itself (Loki supplement eq. 8-10 as a penalty row, as the
 # contacts there are): ``C = |x_a - x_b| - (1 + eps_e) L0 <= 0``, the force ``f = max(0, lam +
 # k C)`` with ``k`` the hard penalty of its vertices (``hard_stiffness`` m / h^2) and ``lam`` the
 # multiplier carried between substeps, so the limit pushes back on the elastic and contact terms
@@ -688,32 +690,22 @@ def _energy_rows(d) -> bool:
 
 
 def limit_multipliers(self, d):
-    """The limited edges' multipliers [N] (tension pushed back by the limit), kept on the data
-    between substeps; zeros until the implicit solver's energy mode updates them."""
-    if d is None:
-        return np.zeros(0)
-    if d.lam is None or len(d.lam) != len(d.edges):
-        d.lam = np.zeros(len(d.edges))
-        d.e_alpha = np.zeros(len(d.edges))
-        d.e_alpha2 = np.full(len(d.edges), np.inf)
-    return d.lam
+    """The energy rows' multipliers [N] (tension pushed back by the limit; allocated at bind),
+    kept on the data between substeps; none without energy rows."""
+    return d.lam if _energy_rows(d) else np.zeros(0)
 
 
 def limit_energy_stencils(self, ctx, d):
     """The limited edges when they are rows of the implicit solve (``implicit`` 'energy'),
     else none (the solver then projects the limit after the solve)."""
-    if not _energy_rows(d):
-        return []
-    limit_multipliers(self, d)
-    return [d.edges]
+    return [d.edges] if _energy_rows(d) else []
 
 
 def limit_energy(self, ctx, d, x, grad, hess, opts):
     if not _energy_rows(d):
         return 0.0
-    return spring_energy(x, d.edges, d.limit, d.e_alpha, d.e_alpha2, limit_multipliers(self, d),
-                         opts.hard_k, opts.mode, grad_or_dummy(grad, opts),
-                         hess_or_dummy(hess, 0, opts))
+    return spring_energy(x, d.edges, d.limit, d.e_alpha, d.e_alpha2, d.lam, opts.hard_k,
+                         opts.mode, grad_or_dummy(grad, opts), hess_or_dummy(hess, 0, opts))
 
 
 def limit_stats(self, ctx, d, x):
@@ -724,7 +716,7 @@ def limit_stats(self, ctx, d, x):
     its projection pass) [-]."""
     e = x[d.edges[:, 0]] - x[d.edges[:, 1]]
     excess = float((np.sqrt(np.einsum("ij,ij->i", e, e)) / d.limit).max() - 1.0)
-    active = int(np.count_nonzero(limit_multipliers(self, d) > 0.0))
+    active = int(np.count_nonzero(d.lam > 0.0))
     s = ctx.stats
     s["strain_limit_rows"] = s.get("strain_limit_rows", 0) + active
     s["max_strain_limit_rows"] = max(s.get("max_strain_limit_rows", 0), active)
@@ -733,18 +725,17 @@ def limit_stats(self, ctx, d, x):
 
 def limit_update_multipliers(self, ctx, d, x, opts):
     if _energy_rows(d):
-        spring_update_lam(x, d.edges, d.limit, d.e_alpha, d.e_alpha2,
-                          limit_multipliers(self, d), opts.hard_k)
+        spring_update_lam(x, d.edges, d.limit, d.e_alpha, d.e_alpha2, d.lam, opts.hard_k)
 
 
 def limit_state_arrays(self, d):
     """Checkpointed run state: the energy rows' multipliers (none without them)."""
-    return {"implicit_lam": limit_multipliers(self, d)} if _energy_rows(d) else {}
+    return {"implicit_lam": d.lam} if _energy_rows(d) else {}
 
 
 def limit_load_state_arrays(self, d, arrays):
-    if d is not None and "implicit_lam" in arrays:
-        limit_multipliers(self, d)[:] = arrays["implicit_lam"]
+    if _energy_rows(d) and "implicit_lam" in arrays:
+        d.lam[:] = arrays["implicit_lam"]
 
 
 StrainLimitConstraint.energy_stencils = limit_energy_stencils

@@ -995,8 +995,9 @@ class ImplicitSolver(Behavior):
             s = ctx.stats
             s["contact_rows"] = s.get("contact_rows", 0) + d.rows["active"]
             s["max_contact_rows"] = max(s.get("max_contact_rows", 0), d.rows["active"])
+        done = {id(b) for b, _ in d.projected}  # their after_finalize ran in the pass
         for b, bd, *_ in d.energies:  # per-substep hooks on the final positions (the rods'
-            if hasattr(b, "after_finalize"):  # material-frame twist)
+            if hasattr(b, "after_finalize") and id(b) not in done:  # material-frame twist)
                 b.after_finalize(ctx, bd, p)
         if P.hard_multipliers == "always" or not (counts["capped"] or jammed):
             for b, bd, *_ in d.energies:  # augmented Lagrangian multipliers of hard rows
