@@ -2416,6 +2416,16 @@ def _max_move(a, b):
     return np.sqrt(m)
 
 
+def _detected_to(c, p):
+    """The rows just detected cover the motion from x to p: remember a copy of p as the end of
+    that motion (``det_ref``, which ``_rows_hold``, ``_rows_cover`` and ``_ccd_incremental``
+    measure from)."""
+    if c.p_det is None or c.p_det.shape != p.shape:
+        c.p_det = np.empty_like(p)
+    c.p_det[:] = p
+    c.det_ref = c.p_det
+
+
 @njit(cache=True)
 def _moved_norms(p, ref, out):
     """|p - ref| per vertex into ``out``; returns the largest (``_max_move``'s value)."""
@@ -2613,11 +2623,8 @@ def ccd_safe_step(c, x, p, w, v, h, frac, rounds, n_it, joint_step=None, stats=N
         if detect:
             _detect_all(c, x, p, v, h, SPACETIME)
             st["ccd_detections"] = st.get("ccd_detections", 0) + 1
-            if CCD_ROUND_INCREMENTAL:  # the rows now cover x -> (a copy of) p
-                if c.p_det is None or c.p_det.shape != p.shape:
-                    c.p_det = np.empty_like(p)
-                c.p_det[:] = p
-                c.det_ref = c.p_det
+            if CCD_ROUND_INCREMENTAL:
+                _detected_to(c, p)
         hv = _ccd_hits(work, c.vf, c.vf_n, c.vf_target, True, x, p, frac)
         he = _ccd_hits(work, c.ee, c.ee_n, c.ee_target, False, x, p, frac)
         return hv, he
@@ -2779,10 +2786,7 @@ class CollisionConstraint(ConstraintBehavior):
         elif self.params.redetect and c.det_ref is not None:
             if not _rows_hold(c, ctx.state.particle_q, p):
                 _detect_all(c, ctx.state.particle_q, p, ctx.state.particle_qd, ctx.dt)
-                if c.p_det is None:
-                    c.p_det = np.empty_like(p)
-                c.p_det[:] = p
-                c.det_ref = c.p_det
+                _detected_to(c, p)
                 ctx.stats["iteration_detections"] = ctx.stats.get("iteration_detections", 0) + 1
         a = _project_contacts(c, p, ctx.state.particle_q, w)
         for vf, ee in c.rel_extra:  # ``RELATIVE_INCREMENTAL``'s rows of this pass
@@ -2812,10 +2816,7 @@ class CollisionConstraint(ConstraintBehavior):
             c.det_ref = c.x1  # the rows come from the detection of CollisionDetect.step
         for _ in range(self._final_rounds):
             _detect_all(c, x, p, ctx.state.particle_qd, ctx.dt, SPACETIME)
-            if c.p_det is None:
-                c.p_det = np.empty_like(p)
-            c.p_det[:] = p
-            c.det_ref = c.p_det
+            _detected_to(c, p)
             for _it in range(n_it):
                 for b, dd in joint:  # strain limits solved together with the contacts
                     b.project_joint(ctx, dd, p)
