@@ -656,6 +656,311 @@ class AggregationReuse:
         vector passes (the x, r update with z = D^-1 r and the restriction P^T r; the
         prolongation with r . z): the same iteration in four passes over the finest level's
         vectors instead of seven."""
+        P, dinv, c, z = self.P[0], self.levels[0]["dinv"], self.levels[1], work["z"]
+
+        def update(x, r, p, Ap, al):
+            return _cg_update_jacobi_restrict(x, r, p, Ap, al, dinv, z, P.indptr, P.indices,
+                                              P.data, c["rb"])
+
+        def apply(r, z):
+            self.vcycle(c["rb"], c["rx"], 1)
+            return _prolong_add_dot(P.indptr, P.indices, P.data, c["rx"], z, r)
+
+        return pcg_fused(A, b, self.additive, tol, maxit, x, work, after, loose, (update, apply))
+
+    def __call__(self, r, z):
+        apply_blocks(self.inv, r, z)
+
+    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0):
+        """The whole PCG in one compiled loop (see :func:`pcg_block_jacobi`; with ``after``
+        > 0 :func:`pcg_block_jacobi_after`; with ``PARALLEL_PCG`` on more than one numba
+        thread and from ``PARALLEL_MIN_VERTICES`` unknowns :func:`pcg_block_jacobi_par`, the
+        same iterates)."""
+        if PARALLEL_PCG and len(b) >= PARALLEL_MIN_VERTICES and get_num_threads() > 1:
+            return pcg_block_jacobi_par(A.indptr, A.indices, A.data, self.inv, b, tol,
+                                        after if after > 0 else maxit + 1, loose, maxit, x,
+                                        work["r"], work["z"], work["p"], work["Ap"], self.t)
+        if after > 0:
+            return pcg_block_jacobi_after(A.indptr, A.indices, A.data, self.inv, b, tol, after,
+                                          loose, maxit, x, work["r"], work["z"], work["p"],
+                                          work["Ap"])
+        return pcg_block_jacobi(A.indptr, A.indices, A.data, self.inv, b, tol, maxit, x,
+                                work["r"], work["z"], work["p"], work["Ap"])
+
+
+class Identity:
+    """No preconditioner (plain CG), for measuring what the block-Jacobi one gains."""
+
+    name = "none"
+
+    def __init__(self, n):
+        pass
+
+    def setup(self, A, diag_index):
+        pass
+
+    def __call__(self, r, z):
+        z[:] = r
+
+    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0):
+        return pcg(A, b, self, tol, maxit, x, work, after, loose)
+
+
+class SmoothedAggregation:
+    """pyamg smoothed aggregation, one V-cycle per application (rebuilt per Newton iteration);
+    for measurement against block-Jacobi."""
+
+    name = "amg"
+
+    def __init__(self, n):
+        self.ml = None
+
+    def setup(self, A, diag_index):
+        import pyamg
+
+        self.ml = pyamg.smoothed_aggregation_solver(A.tocsr(), max_coarse=300)
+        self.M = self.ml.aspreconditioner(cycle="V")
+
+    def __call__(self, r, z):
+        z[:] = (self.M @ r.reshape(-1)).reshape(-1, 3)
+
+    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0):
+        return pcg(A, b, self, tol, maxit, x, work, after, loose)
+
+
+# -- aggregation multigrid with its aggregation reused (preconditioner: amg_reuse) -----------
+
+@njit(cache=True)
+def bsr_gs_sweep(indptr, indices, data, dinv, b, x, backward, from_zero):
+    """One block Gauss-Seidel sweep on A x = b (BSR, 3x3 blocks, sorted block indices;
+    ``dinv`` the inverse diagonal blocks), forward in row order or ``backward``; x in place.
+    ``from_zero`` (forward only): x is 0 on entry, so only the blocks left of the diagonal
+    are read (the same result)."""
+    n = indptr.shape[0] - 1
+    d9 = data.reshape(-1)
+    for k in range(n):
+        i = n - 1 - k if backward else k
+        s0 = b[i, 0]
+        s1 = b[i, 1]
+        s2 = b[i, 2]
+        for q in range(indptr[i], indptr[i + 1]):
+            j = indices[q]
+            if j >= i and from_zero:
+                break
+            if j == i:
+                continue
+            x0 = x[j, 0]
+            x1 = x[j, 1]
+            x2 = x[j, 2]
+            o = 9 * q
+            s0 -= d9[o] * x0 + d9[o + 1] * x1 + d9[o + 2] * x2
+            s1 -= d9[o + 3] * x0 + d9[o + 4] * x1 + d9[o + 5] * x2
+            s2 -= d9[o + 6] * x0 + d9[o + 7] * x1 + d9[o + 8] * x2
+        x[i, 0] = dinv[i, 0, 0] * s0 + dinv[i, 0, 1] * s1 + dinv[i, 0, 2] * s2
+        x[i, 1] = dinv[i, 1, 0] * s0 + dinv[i, 1, 1] * s1 + dinv[i, 1, 2] * s2
+        x[i, 2] = dinv[i, 2, 0] * s0 + dinv[i, 2, 1] * s1 + dinv[i, 2, 2] * s2
+
+
+@njit(cache=True, inline="always")
+def _restrict_row(pptr, pind, p9, i, r0, r1, r2, rc):
+    """rc += P_i^T (r0, r1, r2): fine row i's part of the restriction P^T r (P: BSR, 3x3
+    blocks, fine rows; ``p9`` its data's flat view)."""
+    for q in range(pptr[i], pptr[i + 1]):
+        j = pind[q]
+        o = 9 * q
+        rc[j, 0] += p9[o] * r0 + p9[o + 3] * r1 + p9[o + 6] * r2
+        rc[j, 1] += p9[o + 1] * r0 + p9[o + 4] * r1 + p9[o + 7] * r2
+        rc[j, 2] += p9[o + 2] * r0 + p9[o + 5] * r1 + p9[o + 8] * r2
+
+
+@njit(cache=True)
+def bsr_residual_restrict(indptr, indices, data, b, x, pptr, pind, pdata, rc):
+    """rc = P^T (b - A x): the residual of the fine level restricted by the prolongator P
+    (BSR, 3x3 blocks, fine rows), in one pass over the fine rows."""
+    d9 = data.reshape(-1)
+    p9 = pdata.reshape(-1)
+    rc[:] = 0.0
+    for i in range(indptr.shape[0] - 1):
+        y0, y1, y2 = _row_product(indptr, indices, d9, x, i)
+        r0 = b[i, 0] - y0
+        r1 = b[i, 1] - y1
+        r2 = b[i, 2] - y2
+        _restrict_row(pptr, pind, p9, i, r0, r1, r2, rc)
+
+
+@njit(cache=True)
+def bsr_tmatvec(pptr, pind, pdata, r, rc):
+    """rc = P^T r (P: BSR, 3x3 blocks, fine rows)."""
+    p9 = pdata.reshape(-1)
+    rc[:] = 0.0
+    for i in range(pptr.shape[0] - 1):
+        r0 = r[i, 0]
+        r1 = r[i, 1]
+        r2 = r[i, 2]
+        _restrict_row(pptr, pind, p9, i, r0, r1, r2, rc)
+
+
+@njit(cache=True)
+def bsr_prolong_add(pptr, pind, pdata, xc, x):
+    """x += P xc (P: BSR, 3x3 blocks, fine rows)."""
+    p9 = pdata.reshape(-1)
+    for i in range(pptr.shape[0] - 1):
+        y0, y1, y2 = _row_product(pptr, pind, p9, xc, i)
+        x[i, 0] += y0
+        x[i, 1] += y1
+        x[i, 2] += y2
+
+
+@njit(cache=True)
+def diag_positions(indptr, indices, out):
+    """out[i] = the position of block (i, i) in the BSR pattern (-1 where absent)."""
+    for i in range(indptr.shape[0] - 1):
+        out[i] = -1
+        for q in range(indptr[i], indptr[i + 1]):
+            if indices[q] == i:
+                out[i] = q
+
+
+def _bsr3(M):
+    """M as a BSR matrix of 3x3 blocks with sorted indices, contiguous float64 data."""
+    M = sp.bsr_matrix(M, blocksize=(3, 3))
+    M.sort_indices()
+    M.data = np.ascontiguousarray(M.data, dtype=np.float64)
+    return M
+
+
+class AggregationReuse:
+    """Aggregation multigrid (pyamg's aggregation of the matrix with the three translations as
+    near-null space B) as the CG preconditioner, one symmetric V-cycle per application: forward
+    block Gauss-Seidel before the coarse correction and backward after it on every level, a
+    dense Cholesky solve on the coarsest (``cycle: v``); or ``additive``: block-Jacobi on the
+    finest level plus that V-cycle of the coarse levels on the restricted residual. The
+    aggregation and prolongators (``smooth``: pyamg's smoothed aggregation or its tentative
+    prolongator alone) are built from one Newton matrix and kept; every Newton iteration
+    refreshes the coarse matrices from the new one (Galerkin products P^T A P) and the
+    Gauss-Seidel diagonal blocks, so the V-cycle is that of the current matrix on an older
+    aggregation (a fixed symmetric positive definite preconditioner per solve: PCG stays
+    correct). The aggregation is rebuilt when a solve's CG iterations exceed ``growth`` times
+    those of the first solve after the last build (0: at the first Newton iteration of every
+    substep)."""
+
+    name = "amg_reuse"
+
+    def __init__(self, n, smooth="tentative", growth=2.0, max_coarse=300, cycle="v"):
+        self.n = n
+        self.cycle = cycle
+        self.smooth = smooth
+        self.growth = growth
+        self.max_coarse = max_coarse
+        self.P = None  # prolongators (BSR 3x3), level 0 first
+        self.levels = None
+        self.rebuild = True
+        self.base_it = 0
+        self.builds = 0
+        self.stale = True
+        self.B = np.kron(np.ones((n, 1)), np.eye(3))  # (pyamg gets a copy: it changes B)
+
+    def begin_substep(self):
+        if self.growth <= 0.0:
+            self.rebuild = True
+
+    def _build(self, A):
+        import pyamg
+
+        kw = {} if self.smooth == "smoothed" else {"smooth": None}
+        # a new matrix object: pyamg caches on it (its inverse diagonal blocks, block_D_inv),
+        # and the solver refills this one's data in place
+        A = sp.bsr_matrix((A.data.copy(), A.indices.copy(), A.indptr.copy()), shape=A.shape)
+        ml = pyamg.smoothed_aggregation_solver(A, B=self.B.copy(), max_coarse=self.max_coarse,
+                                               keep=False, presmoother=None,
+                                               postsmoother=None, **kw)
+        self.P = [_bsr3(lv.P) for lv in ml.levels[:-1]]
+        self.levels = None
+        self.rebuild = False
+        self.base_it = 0
+        self.builds += 1
+
+    def setup(self, A, diag_index):
+        """Marks the hierarchy stale; :meth:`refresh` rebuilds or refreshes it at the next
+        solve with a nonzero right-hand side (none is spent on solves that take no
+        iteration)."""
+        self.stale = True
+
+    def refresh(self, A):
+        import scipy.linalg as sla
+
+        self.stale = False
+        if self.rebuild or self.P is None:
+            self._build(A)
+        mats = [A]
+        for P in self.P:
+            mats.append(_bsr3(P.T @ (mats[-1] @ P)))
+        if self.levels is None:
+            self.levels = []
+            for M in mats:
+                nb = M.shape[0] // 3
+                dpos = np.zeros(nb, dtype=np.int64)
+                diag_positions(M.indptr, M.indices, dpos)
+                self.levels.append({"n": nb, "dpos": dpos, "dinv": np.zeros((nb, 3, 3)),
+                                    "b": np.zeros((nb, 3)), "x": np.zeros((nb, 3)),
+                                    "rb": np.zeros((nb, 3)), "rx": np.zeros((nb, 3))})
+        for lv, M in zip(self.levels, mats):
+            lv["A"] = M
+            dp = lv["dpos"]
+            blocks = np.where((dp >= 0)[:, None, None], M.data[np.maximum(dp, 0)], 0.0)
+            invert_blocks(blocks, lv["dinv"])
+        Ac = mats[-1].toarray()
+        Ac = 0.5 * (Ac + Ac.T)
+        zero = np.flatnonzero(np.abs(Ac).sum(axis=1) == 0.0)
+        Ac[zero, zero] = 1.0
+        # the coarsest level's inverse, explicitly (a few hundred unknowns: one dense product
+        # per cycle is cheaper than the triangular solves' call overhead)
+        c, info = sla.lapack.dpotrf(Ac, lower=False)
+        if info == 0:
+            c, info = sla.lapack.dpotri(c, lower=False)  # the inverse from its factor
+        if info != 0:
+            raise np.linalg.LinAlgError(f"coarsest matrix not positive definite ({info})")
+        self.coarse = np.triu(c) + np.triu(c, 1).T
+
+    def vcycle(self, r, z, k0=0):
+        """z = the V-cycle from level ``k0`` applied to r ((n, 3) arrays of that level)."""
+        L = self.levels
+        L[k0]["b"] = r
+        L[k0]["x"] = z
+        for k in range(k0, len(L) - 1):
+            lv, P = L[k], self.P[k]
+            A = lv["A"]
+            lv["x"][:] = 0.0
+            bsr_gs_sweep(A.indptr, A.indices, A.data, lv["dinv"], lv["b"], lv["x"], False, True)
+            bsr_residual_restrict(A.indptr, A.indices, A.data, lv["b"], lv["x"], P.indptr,
+                                  P.indices, P.data, L[k + 1]["b"])
+        last = L[-1]
+        np.dot(self.coarse, last["b"].reshape(-1), out=last["x"].reshape(-1))
+        for k in range(len(L) - 2, k0 - 1, -1):
+            lv, P = L[k], self.P[k]
+            A = lv["A"]
+            bsr_prolong_add(P.indptr, P.indices, P.data, L[k + 1]["x"], lv["x"])
+            bsr_gs_sweep(A.indptr, A.indices, A.data, lv["dinv"], lv["b"], lv["x"], True,
+                         False)
+
+    def additive(self, r, z):
+        """z = D^-1 r + P V1(P^T r): the finest level's block-Jacobi plus the coarse levels'
+        V-cycle on the restricted residual (two-level additive)."""
+        L = self.levels
+        if len(L) == 1:
+            return self.vcycle(r, z)
+        P = self.P[0]
+        apply_blocks(L[0]["dinv"], r, z)
+        c = L[1]
+        bsr_tmatvec(P.indptr, P.indices, P.data, r, c["rb"])
+        self.vcycle(c["rb"], c["rx"], 1)
+        bsr_prolong_add(P.indptr, P.indices, P.data, c["rx"], z)
+
+    def pcg_additive(self, A, b, tol, maxit, x, work, after=0, loose=0.0):
+        """:func:`pcg_fused` with the additive cycle's finest-level passes fused into the CG
+        vector passes (the x, r update with z = D^-1 r and the restriction P^T r; the
+        prolongation with r . z): the same iteration in four passes over the finest level's
+        vectors instead of seven."""
         r, z, p, Ap = work["r"], work["z"], work["p"], work["Ap"]
         L = self.levels
         P = self.P[0]
@@ -778,10 +1083,20 @@ def _cg_direction(p, z, beta):
             p[i, a] = z[i, a] + beta * p[i, a]
 
 
-def pcg_fused(A, b, precond, tol, maxit, x, work, after=0, loose=0.0):
+def pcg_fused(A, b, precond, tol, maxit, x, work, after=0, loose=0.0, fused=None):
     """:func:`pcg` with the vector passes in compiled kernels (the matrix product with p . Ap,
-    the updates with r . r), for preconditioners applied from Python (``precond(r, z)``)."""
+    the updates with r . r), for preconditioners applied from Python (``precond(r, z)``).
+    ``fused``: ``(update, apply)`` for the passes after the first application, a
+    preconditioner's own fusion of them: ``update(x, r, p, Ap, al)`` does x += al p, r -= al
+    Ap and returns r . r, ``apply(r, z)`` writes z = M^-1 r and returns r . z."""
     r, z, p, Ap = work["r"], work["z"], work["p"], work["Ap"]
+    if fused is None:
+        def apply(r, z):
+            precond(r, z)
+            return _dot(r, z)
+
+        fused = (_cg_update, apply)
+    update, apply = fused
     x[:] = 0.0
     r[:] = b
     bn = math.sqrt(_dot(b, b))
@@ -797,12 +1112,11 @@ def pcg_fused(A, b, precond, tol, maxit, x, work, after=0, loose=0.0):
         if pAp <= 0.0:
             break
         al = rz / pAp
-        rn = math.sqrt(_cg_update(x, r, p, Ap, al))
+        rn = math.sqrt(update(x, r, p, Ap, al))
         it += 1
         if rn <= tol * bn or (0 < after <= it and rn <= loose * bn):
             break
-        precond(r, z)
-        rz_new = _dot(r, z)
+        rz_new = apply(r, z)
         _cg_direction(p, z, rz_new / rz)
         rz = rz_new
     return it, rn / bn
