@@ -433,7 +433,16 @@ class StrainLimitParams(ConstraintParams):
         "CPU, the target was 1.3x (with global_fast_lu and global_chord: setting B). With "
         "'filter' the sweeps are followed by the filter's contact planes (global_contacts). "
         "Setting B's value, a default since stop 29 (0 before; "
-        "inextensible_max_strain).")
+        "inextensible_max_strain). More sweeps on the moving sphere "
+        "(graphs/bench/moving_strain.py 128 24, stop 34, one setting a run, load ~3): "
+        "there the step stops at its 20 passes in most contact frames, its Newton steps "
+        "(40-690 mm) cut to 3.95 mm and the worst edge going up and down from pass to pass "
+        "(17-40 % in frame 7). Frames 6-22: 40 sweeps 137.6 s CPU, worst 50.7 %, 1,654 edges "
+        "over 5 % a frame (mean); 100: 146.0 s, 61.1 %, 644; 200: 164.5 s, 32.5 %, 229. "
+        "global_alpha 1e-3 or 1e-2, global_pivots 8, global_chord 0, a per-pass cap twice or "
+        "four times as large, contact rows from three times as far, and keeping the best "
+        "pass changed frame 7 (29.3 %) to 17-37 % at 20 passes. Not a default: the worst "
+        "frame is no better at 100 and 200 costs 1.2x.")
     global_chord: int = Field(
         3, ge=0, le=100, description="With global_contacts 'rows' and global_pivots: up to "
         "this many passes after a factorised one re-solve its active set (edges and contact "
