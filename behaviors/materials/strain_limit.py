@@ -438,7 +438,7 @@ class StrainLimitParams(ConstraintParams):
         "there the step stops at its 20 passes in most contact frames, its Newton steps "
         "(40-690 mm) cut to 3.95 mm and the worst edge going up and down from pass to pass "
         "(17-40 % in frame 7). Frames 6-22: 40 sweeps 137.6 s CPU, worst 50.7 %, 1,654 edges "
-        "over 5 % a frame (mean); 100: 146.0 s, 61.1 %, 644; 200: 164.5 s, 32.5 %, 229. "
+        "over 5 % a frame (mean); 100: 146.0 s, 61.1 %, 634; 200: 164.5 s, 32.5 %, 224. "
         "global_alpha 1e-3 or 1e-2, global_pivots 8, global_chord 0, a per-pass cap twice or "
         "four times as large, contact rows from three times as far, and keeping the best "
         "pass changed frame 7 (29.3 %) to 17-37 % at 20 passes. Not a default: the worst "
