@@ -52,14 +52,21 @@ def _friction_f0(y, eps):
 
 
 @njit(cache=True)
-def _friction_cu(y, eps, ml, irls):
-    """Coefficient of the -u u^T term of the friction Hessian block (0 for the IRLS
-    majorizer); ml = mu lam."""
-    if irls:
+def _friction_cu(y, eps, ml, floor):
+    """Coefficient of the -u u^T term of the friction Hessian block; ml = mu lam. ``floor``
+    in [0, 1]: the block's curvature along u is kept at least ``floor`` times its curvature
+    across u (mu lam f1(y) / y): 0 is IPC's exact PSD block (0 along u while sliding), 1 the
+    IRLS majorizer (``friction_hessian: irls``, no -u u^T term)."""
+    if floor >= 1.0:
         return 0.0
     if y < eps:
-        return ml / (eps * eps * y) if y > 0.0 else 0.0
-    return ml / (y * y * y)
+        cu = ml / (eps * eps * y) if y > 0.0 else 0.0
+    else:
+        cu = ml / (y * y * y)
+    if floor > 0.0 and y > 0.0:
+        f1y = 2.0 / eps - y / (eps * eps) if y < eps else 1.0 / y
+        cu = min(cu, (1.0 - floor) * ml * f1y / (y * y))
+    return cu
 
 _PLANE, _SPHERE, _CAPSULE = 0, 1, 2  # as behaviors/collision/shapes.py
 
@@ -147,16 +154,17 @@ def update_contact_multipliers(x, fixed, kinds, centers, dirs, radii, lengths, k
 
 @njit(cache=True)
 def contact_energy(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, kc, lam, nrm, eps,
-                   mode, grad, A, diag, irls):
+                   mode, grad, A, diag, floor):
     """Penalty + lagged friction energy at x (module docstring); mode >= 1 adds the gradient
-    into grad, mode >= 2 adds the 3x3 Hessian blocks into A[diag[i]]."""
+    into grad, mode >= 2 adds the 3x3 Hessian blocks into A[diag[i]]; ``floor``: the friction
+    block's curvature along the slip (``_friction_cu``: 0 exact, 1 IRLS)."""
     return contact_energy_al(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, kc,
-                             np.zeros_like(lam), lam, nrm, eps, mode, grad, A, diag, irls)
+                             np.zeros_like(lam), lam, nrm, eps, mode, grad, A, diag, floor)
 
 
 @njit(cache=True)
 def contact_energy_al(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, kc, mult, lam,
-                      nrm, eps, mode, grad, A, diag, irls):
+                      nrm, eps, mode, grad, A, diag, floor):
     """``contact_energy`` with the augmented Lagrangian multipliers ``mult`` [N]: where
     mult[i, s] > 0 the penalty is ((mult - k d)_+^2 - mult^2) / (2 k) (force (mult - k d)_+
     along the normal, Hessian k n n^T while it pushes); where it is 0, k / 2 min(d, 0)^2."""
@@ -217,7 +225,7 @@ def contact_energy_al(x, x0, fixed, kinds, centers, dirs, radii, lengths, mus, k
                     grad[i, r] += ml * f1y * u[r]
             if mode >= 2:
                 b = diag[i]
-                cu = _friction_cu(y, eps, ml, irls)
+                cu = _friction_cu(y, eps, ml, floor)
                 for r in range(3):
                     for c in range(3):
                         p = (1.0 if r == c else 0.0) - nrm[i, s, r] * nrm[i, s, c]
@@ -550,7 +558,7 @@ def row_energy_coupled(x, x0, fixed, rows, nrm, target, coef, kr, lam, mu, eps, 
             for q in range(3):
                 g[q] = ml * f1y * u[q]
             if mode >= 2:
-                cu = _friction_cu(y, eps, ml, irls)
+                cu = _friction_cu(y, eps, ml, 1.0 if irls else 0.0)
                 for p in range(3):
                     for q in range(3):
                         pp = (1.0 if p == q else 0.0) - nrm[r, p] * nrm[r, q]
