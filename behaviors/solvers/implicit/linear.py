@@ -366,11 +366,14 @@ class BlockJacobi:
     def __call__(self, r, z):
         apply_blocks(self.inv, r, z)
 
-    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0):
+    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0, lowrank=None):
         """The whole PCG in one compiled loop (see :func:`pcg_block_jacobi`; with ``after``
         > 0 :func:`pcg_block_jacobi_after`; with ``PARALLEL_PCG`` on more than one numba
         thread and from ``PARALLEL_MIN_VERTICES`` unknowns :func:`pcg_block_jacobi_par`, the
-        same iterates)."""
+        same iterates). With ``lowrank`` (rank-one terms of the matrix, :func:`pcg_fused`)
+        :func:`pcg_fused` with the block-Jacobi application."""
+        if lowrank is not None:
+            return pcg_fused(A, b, self, tol, maxit, x, work, after, loose, lowrank=lowrank)
         if PARALLEL_PCG and len(b) >= PARALLEL_MIN_VERTICES and get_num_threads() > 1:
             return pcg_block_jacobi_par(A.indptr, A.indices, A.data, self.inv, b, tol,
                                         after if after > 0 else maxit + 1, loose, maxit, x,
@@ -702,7 +705,9 @@ class Identity:
     def __call__(self, r, z):
         z[:] = r
 
-    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0):
+    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0, lowrank=None):
+        if lowrank is not None:
+            return pcg_fused(A, b, self, tol, maxit, x, work, after, loose, lowrank=lowrank)
         return pcg(A, b, self, tol, maxit, x, work, after, loose)
 
 
@@ -724,7 +729,9 @@ class SmoothedAggregation:
     def __call__(self, r, z):
         z[:] = (self.M @ r.reshape(-1)).reshape(-1, 3)
 
-    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0):
+    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0, lowrank=None):
+        if lowrank is not None:
+            return pcg_fused(A, b, self, tol, maxit, x, work, after, loose, lowrank=lowrank)
         return pcg(A, b, self, tol, maxit, x, work, after, loose)
 
 
@@ -998,13 +1005,18 @@ class AggregationReuse:
         else:
             self.vcycle(r, z)
 
-    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0):
+    def solve(self, A, b, tol, maxit, x, work, after=0, loose=0.0, lowrank=None):
+        """PCG with this preconditioner; with ``lowrank`` (rank-one terms of the matrix,
+        applied in the product by :func:`pcg_fused`; the hierarchy holds their diagonal
+        blocks only, which the caller put into A) the unfused cycle."""
         if not b.any():
             x[:] = 0.0
             return 0, 0.0
         if self.stale or self.levels is None:
             self.refresh(A)
-        if self.cycle == "additive" and len(self.levels) > 1:
+        if lowrank is not None:
+            it, res = pcg_fused(A, b, self, tol, maxit, x, work, after, loose, lowrank=lowrank)
+        elif self.cycle == "additive" and len(self.levels) > 1:
             it, res = self.pcg_additive(A, b, tol, maxit, x, work, after, loose)
         else:
             it, res = pcg_fused(A, b, self, tol, maxit, x, work, after, loose)
@@ -1083,12 +1095,15 @@ def _cg_direction(p, z, beta):
             p[i, a] = z[i, a] + beta * p[i, a]
 
 
-def pcg_fused(A, b, precond, tol, maxit, x, work, after=0, loose=0.0, fused=None):
+def pcg_fused(A, b, precond, tol, maxit, x, work, after=0, loose=0.0, fused=None,
+              lowrank=None):
     """:func:`pcg` with the vector passes in compiled kernels (the matrix product with p . Ap,
     the updates with r . r), for preconditioners applied from Python (``precond(r, z)``).
     ``fused``: ``(update, apply)`` for the passes after the first application, a
     preconditioner's own fusion of them: ``update(x, r, p, Ap, al)`` does x += al p, r -= al
-    Ap and returns r . r, ``apply(r, z)`` writes z = M^-1 r and returns r . z."""
+    Ap and returns r . r, ``apply(r, z)`` writes z = M^-1 r and returns r . z. ``lowrank``:
+    ``(U (m, n, 3), k (m,))``, the matrix is A + sum_j k_j (u_j u_j^T - blockdiag(u_j u_j^T))
+    (A holding the terms' diagonal blocks; :func:`lowrank_matvec`)."""
     r, z, p, Ap = work["r"], work["z"], work["p"], work["Ap"]
     if fused is None:
         def apply(r, z):
@@ -1109,6 +1124,8 @@ def pcg_fused(A, b, precond, tol, maxit, x, work, after=0, loose=0.0, fused=None
     rn = bn
     while it < maxit:
         pAp = _cg_matvec_dot(A.indptr, A.indices, A.data, p, Ap)
+        if lowrank is not None:
+            pAp += lowrank_matvec(p, Ap, lowrank[0], lowrank[1], lowrank[2])
         if pAp <= 0.0:
             break
         al = rz / pAp
@@ -1120,3 +1137,30 @@ def pcg_fused(A, b, precond, tol, maxit, x, work, after=0, loose=0.0, fused=None
         _cg_direction(p, z, rz_new / rz)
         rz = rz_new
     return it, rn / bn
+
+
+@njit(cache=True)
+def lowrank_matvec(p, Ap, U, k, sub):
+    """Ap += sum_j k_j (u_j (u_j . p) - blockdiag(u_j u_j^T) p): the rank-one terms k u u^T of
+    global rows (the implicit solver's volume rows) less their per-vertex diagonal blocks,
+    which the sparse matrix holds (so the preconditioners see them; ``sub`` 1.0, or 0.0 where
+    it does not hold them: the whole term). Returns the added p . Ap. U: (m, n, 3), k: (m,)."""
+    add = 0.0
+    for j in range(U.shape[0]):
+        kj = k[j]
+        if kj == 0.0:
+            continue
+        s = 0.0
+        for i in range(p.shape[0]):
+            s += U[j, i, 0] * p[i, 0] + U[j, i, 1] * p[i, 1] + U[j, i, 2] * p[i, 2]
+        d2 = 0.0
+        for i in range(p.shape[0]):
+            ui = U[j, i, 0] * p[i, 0] + U[j, i, 1] * p[i, 1] + U[j, i, 2] * p[i, 2]
+            ui *= sub
+            d2 += ui * ui
+            f = kj * (s - ui)
+            Ap[i, 0] += f * U[j, i, 0]
+            Ap[i, 1] += f * U[j, i, 1]
+            Ap[i, 2] += f * U[j, i, 2]
+        add += kj * (s * s - d2)
+    return add

@@ -183,8 +183,12 @@ from .contact import (_ALL_MOVED, contact_energy_al, extend_live, lag_contacts_a
 from .energy import EnergyOptions, build_pattern, gather_blocks, gather_map, limit_energy
 from .compliant import compliant_edges, shape_energy
 from .linear import (AggregationReuse, BlockJacobi, Identity, SmoothedAggregation,
-                     invert_blocks)
+                     invert_blocks, lowrank_matvec)
 
+#: the rank-one Hessian terms' per-vertex diagonal blocks go into the Newton matrix (so every
+#: preconditioner holds them); False: the CG product applies the whole term, the
+#: preconditioners see none of it (measured in graphs/bench/implicit_pressure.py)
+LOWRANK_DIAG = False
 #: constraint types applied by the projection pass after the Newton solve (see module docstring)
 PROJECTED_TYPES = ("CollisionConstraint", "ShapeCollisionConstraint", "StrainLimitConstraint",
                    "PressureConstraint")
@@ -683,6 +687,14 @@ class _ImplicitData:
     shape_map: np.ndarray | None = None
     #: per Newton iteration diagnostics (a list a bench script sets; None: off), ``_trace``
     trace: list | None = None
+    #: rank-one Hessian terms k g g^T of global rows (the volume rows of PressureConstraint,
+    #: ``energy_lowrank``): the energies that give them, and per term its g masked at the
+    #: Dirichlet vertices (m, n, 3) and k (m,), refreshed with the Newton matrix; ``lowrank``
+    #: (U, k) for the linear solve while there are terms, else None
+    lr_energies: list = field(default_factory=list)
+    lr_U: np.ndarray | None = None
+    lr_k: np.ndarray | None = None
+    lowrank: tuple | None = None
 
 
 class ImplicitSolver(Behavior):
@@ -796,6 +808,11 @@ class ImplicitSolver(Behavior):
             e.append([np.zeros((s.shape[0], s.shape[1], s.shape[1], 3, 3)) for s in e[2]])
             k += ns
         d.energies = energies
+        d.lr_energies = [(e[0], e[1]) for e in energies if hasattr(e[0], "energy_lowrank")]
+        m_lr = sum(len(b.energy_lowrank(bd)) for b, bd in d.lr_energies)
+        if m_lr:
+            d.lr_U = np.zeros((m_lr, n, 3))
+            d.lr_k = np.zeros(m_lr)
         d.projected = projected
         d.diag = diag
         d.brow = np.repeat(np.arange(n), np.diff(indptr))
@@ -882,6 +899,8 @@ class ImplicitSolver(Behavior):
                 for (ptr, src), hl in zip(gmaps, hloc):
                     gather_blocks(A, ptr, src, hl)
             E += self._limit_energy(d, x, mode, opts, grad, A)
+            if d.lr_U is not None:
+                self._lowrank_blocks(d, A)
             if d.shape_edges is not None:  # compliant_shape_stiffness
                 E += shape_energy(x, xt, d.shape_edges, d.shape_kbar,
                                   self.params.compliant_shape_stiffness / (h * h), 2, grad, A,
@@ -934,6 +953,32 @@ class ImplicitSolver(Behavior):
         if mode >= 1:
             grad[d.cur_fixed] = 0.0
         return E
+
+    def _lowrank_blocks(self, d, A):
+        """The rank-one terms k g g^T of this Newton matrix (``energy_lowrank``, read after the
+        energies' mode-2 evaluation): g masked at the Dirichlet vertices into ``lr_U``, the
+        per-vertex diagonal blocks k g_i g_i^T added to A's diagonal blocks (the linear solve
+        adds the rest, k g (g . v) less those blocks, in its matrix product:
+        ``linear.lowrank_matvec``)."""
+        j = 0
+        free = ~d.cur_fixed
+        for b, bd in d.lr_energies:
+            for k, g in b.energy_lowrank(bd):
+                U = d.lr_U[j]
+                np.multiply(g, free[:, None], out=U)
+                d.lr_k[j] = k
+                if k != 0.0 and LOWRANK_DIAG:
+                    A[d.diag] += k * (U[:, :, None] * U[:, None, :])
+                j += 1
+        d.lowrank = ((d.lr_U, d.lr_k, 1.0 if LOWRANK_DIAG else 0.0) if (d.lr_k != 0.0).any()
+                     else None)
+
+    def _matvec(self, d, v):
+        """The Newton matrix times v (n, 3), rank-one terms included."""
+        Av = (d.A @ v.reshape(-1)).reshape(-1, 3)
+        if d.lowrank is not None:
+            lowrank_matvec(v, Av, *d.lowrank)
+        return Av
 
     def step(self, ctx, data):
         d = data
@@ -995,6 +1040,9 @@ class ImplicitSolver(Behavior):
         jammed = False
         if d.rows.get("sets"):  # complementarity of the rows at the Newton solution
             jammed = self._row_residuals(ctx, d, p, xt) > P.jam_penetration
+        for b, bd in ctx.constraints:  # statistics of the Newton solution (volume rows)
+            if hasattr(b, "implicit_solved"):
+                b.implicit_solved(ctx, bd, p)
         if d.projected:
             pp = w["pp"]
             pp[:] = p
@@ -1016,6 +1064,9 @@ class ImplicitSolver(Behavior):
             s = ctx.stats
             s["contact_rows"] = s.get("contact_rows", 0) + d.rows["active"]
             s["max_contact_rows"] = max(s.get("max_contact_rows", 0), d.rows["active"])
+        for b, bd in ctx.constraints:  # statistics of the substep's end (volume rows)
+            if hasattr(b, "implicit_end_substep"):
+                b.implicit_end_substep(ctx, bd, p)
         done = {id(b) for b, _ in d.projected}  # their after_finalize ran in the pass
         for b, bd, *_ in d.energies:  # per-substep hooks on the final positions (the rods'
             if hasattr(b, "after_finalize") and id(b) not in done:  # material-frame twist)
@@ -1282,7 +1333,12 @@ class ImplicitSolver(Behavior):
                 neg[d.elim] = 0.0
             if d.trace is not None:
                 tr0 = self._trace_start(ctx, d, xs, xt, g)
-            it, res = d.precond.solve(d.A, neg, cg_tol, P.cg_iterations, dx, w, after, loose)
+            if d.lowrank is None:
+                it, res = d.precond.solve(d.A, neg, cg_tol, P.cg_iterations, dx, w, after,
+                                          loose)
+            else:  # rank-one terms in the product (every preconditioner: pcg_fused's hook)
+                it, res = d.precond.solve(d.A, neg, cg_tol, P.cg_iterations, dx, w, after,
+                                          loose, lowrank=d.lowrank)
             if d.elim is not None:
                 invert_blocks(d.A.data[d.elim_diag], d.elim_inv)
                 dx[d.elim] = np.einsum("nij,nj->ni", d.elim_inv, d.elim_rhs)
@@ -1393,7 +1449,7 @@ class ImplicitSolver(Behavior):
                 pen += e_pen
                 fr += e_all - e_pen
             parts[key] = (self._potential(ctx, d, xe, 0, opts, xt, None), pen, fr)
-        Adx = (d.A @ dxs.reshape(-1)).reshape(-1, 3)
+        Adx = self._matvec(d, dxs)
         pred = float(np.vdot(d.work["g"], dxs)) + 0.5 * float(np.vdot(dxs, Adx))
         dE = [parts["f"][i] - parts["b"][i] for i in range(3)]
         E2 = self._potential(ctx, d, x, 0, opts, xt, None)  # with the rows lagged at x
