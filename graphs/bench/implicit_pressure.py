@@ -8,7 +8,8 @@ error, speeds and cost of each setting, one run after the other in one process.
 ``SUBSTEPS:YOUNGS:IMPLICIT[:KEY=VALUE,...]``: graphs/examples/pressure_ball.yaml (a closed
 cloth sphere inflated to 1.3 x its rest volume, dropped onto the ground from 1 m; 40 frames)
 with ``solver: implicit``, that many substeps, the shell's Young's modulus (the example's is
-2e4) and ``pressure: {implicit: IMPLICIT, KEY: VALUE}``. Per run: the largest relative volume
+2e4) and ``pressure: {implicit: IMPLICIT, KEY: VALUE}`` (``solver.KEY=VALUE``: an
+implicit_solver parameter, e.g. ``solver.preconditioner=amg_reuse``). Per run: the largest relative volume
 error at the end of a frame (after the projection pass and the ground's safety projection) and
 in the Newton solution (``max_volume_error_solve``, before the projection pass), the largest
 vertex speed from frame 12 on (the ball lands at frame ~10), the lowest vertex height, CPU
@@ -33,10 +34,12 @@ sys.path.insert(0, str(ROOT))
 FRAMES = 40
 
 
-def scene_text(substeps, youngs, implicit, frames=FRAMES, extra=""):
-    """pressure_ball.yaml with solver: implicit and the given settings."""
+def scene_text(substeps, youngs, implicit, frames=FRAMES, extra="", solver=""):
+    """pressure_ball.yaml with solver: implicit and the given settings (``extra``, ``solver``:
+    ", key: value" text of the pressure / implicit_solver overrides)."""
     t = (ROOT / "graphs" / "examples" / "pressure_ball.yaml").read_text()
-    over = f"graph_overrides: {{pressure: {{implicit: {implicit}{extra}}}}}"
+    over = (f"graph_overrides: {{pressure: {{implicit: {implicit}{extra}}}"
+            + (f", implicit_solver: {{{solver[2:]}}}" if solver else "") + "}")
     t = t.replace("graph: default", f"graph: default\nsolver: implicit\n{over}", 1)
     t = t.replace("substeps: 4", f"substeps: {substeps}").replace("end: 48", f"end: {frames}")
     return t.replace("youngs_modulus: 2.0e4", f"youngs_modulus: {float(youngs)!r}")
@@ -86,10 +89,11 @@ def main(argv):
     tmp = Path(tempfile.mkdtemp())
     for spec in specs:
         sub, youngs, impl, *kv = spec.split(":")
-        extra = "".join(f", {k}: {v}" for k, v in (p.split("=") for p in kv[0].split(","))) \
-            if kv else ""
-        path = tmp / f"ball_{sub}_{youngs}_{impl}.yaml"
-        path.write_text(scene_text(int(sub), float(youngs), impl, extra=extra))
+        pairs = [p.split("=") for p in kv[0].split(",")] if kv else []
+        extra = "".join(f", {k}: {v}" for k, v in pairs if not k.startswith("solver."))
+        solver = "".join(f", {k[7:]}: {v}" for k, v in pairs if k.startswith("solver."))
+        path = tmp / f"ball_{len(specs)}_{abs(hash(spec))}.yaml"
+        path.write_text(scene_text(int(sub), float(youngs), impl, extra=extra, solver=solver))
         for flag in ((True, False) if diag else (S.LOWRANK_DIAG,)):
             S.LOWRANK_DIAG = flag
             rows, _ = measure(path)

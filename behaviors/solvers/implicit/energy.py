@@ -23,6 +23,11 @@ Optional:
     substep on the final positions; the multipliers live on the data (checkpointed by the
     behavior's ``state_arrays``).
 
+``energy_lowrank(data) -> list[(k, g)]``
+    Rank-one Hessian terms ``k g g^T`` (``g`` an (n, 3) array, ``k`` >= 0) of global rows (an
+    enclosed volume), as of the last mode-2 call: dense over many vertices, so not written as
+    blocks; the solver applies them in the CG product (``linear.lowrank_matvec``).
+
 ``implicit_project(ctx, data, p)``
     A projection the solver applies after the Newton solve for the part of the effect that is
     not an energy (sliding attachments).
