@@ -9,7 +9,8 @@ error, speeds and cost of each setting, one run after the other in one process.
 cloth sphere inflated to 1.3 x its rest volume, dropped onto the ground from 1 m; 40 frames)
 with ``solver: implicit``, that many substeps, the shell's Young's modulus (the example's is
 2e4) and ``pressure: {implicit: IMPLICIT, KEY: VALUE}`` (``solver.KEY=VALUE``: an
-implicit_solver parameter, e.g. ``solver.preconditioner=amg_reuse``). Per run: the largest relative volume
+implicit_solver parameter, e.g. ``solver.preconditioner=amg_reuse``; ``subdivisions=N``: the
+ball's icosphere subdivisions, 3 in the example: 642 vertices, 4: 2,562). Per run: the largest relative volume
 error at the end of a frame (after the projection pass and the ground's safety projection) and
 in the Newton solution (``max_volume_error_solve``, before the projection pass), the largest
 vertex speed from frame 12 on (the ball lands at frame ~10), the lowest vertex height, CPU
@@ -34,10 +35,11 @@ sys.path.insert(0, str(ROOT))
 FRAMES = 40
 
 
-def scene_text(substeps, youngs, implicit, frames=FRAMES, extra="", solver=""):
+def scene_text(substeps, youngs, implicit, frames=FRAMES, extra="", solver="", subdivisions=3):
     """pressure_ball.yaml with solver: implicit and the given settings (``extra``, ``solver``:
     ", key: value" text of the pressure / implicit_solver overrides)."""
     t = (ROOT / "graphs" / "examples" / "pressure_ball.yaml").read_text()
+    t = t.replace("subdivisions: 3", f"subdivisions: {subdivisions}")
     over = (f"graph_overrides: {{pressure: {{implicit: {implicit}{extra}}}"
             + (f", implicit_solver: {{{solver[2:]}}}" if solver else "") + "}")
     t = t.replace("graph: default", f"graph: default\nsolver: implicit\n{over}", 1)
@@ -90,10 +92,13 @@ def main(argv):
     for spec in specs:
         sub, youngs, impl, *kv = spec.split(":")
         pairs = [p.split("=") for p in kv[0].split(",")] if kv else []
+        sd = int(dict(pairs).get("subdivisions", 3))
+        pairs = [(k, v) for k, v in pairs if k != "subdivisions"]
         extra = "".join(f", {k}: {v}" for k, v in pairs if not k.startswith("solver."))
         solver = "".join(f", {k[7:]}: {v}" for k, v in pairs if k.startswith("solver."))
         path = tmp / f"ball_{len(specs)}_{abs(hash(spec))}.yaml"
-        path.write_text(scene_text(int(sub), float(youngs), impl, extra=extra, solver=solver))
+        path.write_text(scene_text(int(sub), float(youngs), impl, extra=extra, solver=solver,
+                                   subdivisions=sd))
         for flag in ((True, False) if diag else (S.LOWRANK_DIAG,)):
             S.LOWRANK_DIAG = flag
             rows, _ = measure(path)
