@@ -10,8 +10,8 @@ cloth sphere inflated to 1.3 x its rest volume, dropped onto the ground from 1 m
 with ``solver: implicit``, that many substeps, the shell's Young's modulus (the example's is
 2e4) and ``pressure: {implicit: IMPLICIT, KEY: VALUE}`` (``solver.KEY=VALUE``: an
 implicit_solver parameter, e.g. ``solver.preconditioner=amg_reuse``; ``subdivisions=N``: the
-ball's icosphere subdivisions, 3 in the example: 642 vertices, 4: 2,562). Per run: the largest relative volume
-error at the end of a frame (after the projection pass and the ground's safety projection) and
+ball's icosphere subdivisions, 3 in the example: 642 vertices, 4: 2,562). Per run: the
+largest relative volume error at the end of a frame (after the projection pass and the ground's safety projection) and
 in the Newton solution (``max_volume_error_solve``, before the projection pass), the largest
 vertex speed from frame 12 on (the ball lands at frame ~10), the lowest vertex height, CPU
 [s] per frame (frames 2-40, ``time.process_time``), Newton and CG iterations per frame.
