@@ -354,9 +354,9 @@ class StretchParams(ConstraintParams):
         "inextensible DiscreteShell cloth (youngs_modulus null) that have a vertex in a "
         "contact row of the substep (the detection's candidates), times the shell's "
         "compression_ratio (0 keeps compression off), in the Nucleus projection; other edges "
-        "and the implicit solver's energy stay hard in compression; null = hard everywhere "
-        "(the default before issue #13). Cloth squeezed in contact buckles instead of pushing "
-        "back: with hard "
+        "and the implicit solver's energy (unless implicit_compression) stay hard in "
+        "compression; null = hard everywhere (the default before issue #13). Cloth squeezed "
+        "in contact buckles instead of pushing back: with hard "
         "compression rows, a sleeve pinched in a closing elbow crease is held between the "
         "contacts, the long-range rows and the strain limit (edges of one vertex at -20 % and "
         "+20 % in the same iteration, the vertex moved 3-4 mm back and forth in every "
@@ -369,6 +369,22 @@ class StretchParams(ConstraintParams):
         "1.15/1.01/0.85/0.78 m/s; compression off 0.80/0.79/0.80/0.83 (a fold of the collapsed "
         "sleeve falls freely once the crease opens). Compliant on every edge instead of only "
         "near contacts, the 10 N/m flag in wind reaches 18.3 % strain (5.0 % hard).")
+    implicit_compression: Literal["hard", "near_contacts"] = Field(
+        "hard", description="The implicit solver's energy of the hard edges of inextensible "
+        "DiscreteShell cloth in compression: 'hard' the augmented-Lagrangian penalty both ways "
+        "(the default); 'near_contacts' the Nucleus projection's compression stiffness "
+        "(inextensible_compression) on the edges with a vertex in a contact row of the "
+        "substep, so that cloth squeezed in contact buckles in the Newton solve as it does in "
+        "the Nucleus projection (opt-in; issue #11). Cause measured on sleeve_elbow with "
+        "solver: implicit (graphs/bench/implicit_compliant_elbow.py --dirichlet --energy 12 13): "
+        "with 'hard' "
+        "the crease compresses the sleeve's edges at the joint by up to 33 % (frame 13) and "
+        "the incremental potential at the Newton cap holds 9.9 J, 8.5 J of it in these rows "
+        "(the sleeve's kinetic energy is a few mJ); with 'near_contacts' 0.1-1.2 J. "
+        "Near-joint speed (bound 0.73 m/s; frames 5-61, 0 intersecting pairs in every frame; "
+        "CPU of the 60 frames): 'hard' 1.071 m/s, 12 frames over the bound, 47.4 s; "
+        "'near_contacts' 1.069 m/s, 8 frames, 50.6 s: the rest is Newton stopping at its cap "
+        "far from the minimum (tests/test_implicit_elbow.py, the bench's docstring).")
     joint_long_range: bool | Literal["pinch"] = Field(
         "pinch", description="Project the long-range rows also in every joint pass of the "
         "final collision rounds and of the CCD rounds (before the strain limits and the "
@@ -577,9 +593,12 @@ def spring_energy(x, idx, rest, alpha, alpha2, lam, hard_k, mode, grad, hess):
     Lagrangian term with the penalty ``k = hard_k`` (the larger of its two vertices) and the
     multiplier ``lam`` [N] carried over from the previous substeps (``spring_update_lam``):
     ``E = ((lam + k C)^2 - lam^2) / (2 k)``, bilateral when ``alpha2 = 0``, tension only
-    (``lam + k C`` clamped at 0) when compression is off (``alpha2 = inf``). At rest the
-    multiplier converges to the tension and C to 0, so a moderate, well-conditioned penalty
-    still gives an inextensible edge.
+    (``lam + k C`` clamped at 0) when compression is off (``alpha2 = inf``), and soft in
+    compression when ``0 < alpha2 < inf`` (``StretchParams.implicit_compression``): where
+    ``lam + k C < 0``, i.e. below ``C0 = -lam / k``, the spring ``k2 (C - C0)^2 / 2`` with
+    ``k2 = 1 / alpha2`` (C1 at C0; its multiplier is clamped at 0 like a tension-only row's).
+    At rest the multiplier converges to the tension and C to 0, so a moderate,
+    well-conditioned penalty still gives an inextensible edge.
 
     With the force ``f = lam + k C`` (tension > 0): gradient ``f n`` exact; Hessian
     ``k n n^T + max(0, f / l) (I - n n^T)``: exact under tension, the negative transverse part of
@@ -606,7 +625,14 @@ def spring_energy(x, idx, rest, alpha, alpha2, lam, hard_k, mode, grad, hess):
             if f < 0.0 and not alpha2[j] < _INF:  # compression off: tension only
                 E -= 0.5 * lj * lj / k
                 continue
-            E += 0.5 * (f * f - lj * lj) / k
+            if f < 0.0 and alpha2[j] > 0.0:  # soft in compression (implicit_compression)
+                k2 = 1.0 / alpha2[j]  # the spring 1 / alpha2 beyond c0 = -lam / k (C1 there)
+                c0 = -lj / k
+                E += 0.5 * k2 * (c - c0) * (c - c0) - 0.5 * lj * lj / k
+                f = k2 * (c - c0)
+                k = k2
+            else:
+                E += 0.5 * (f * f - lj * lj) / k
         else:
             k = row_k(alpha[j] if c >= 0.0 else alpha2[j], hard_k, a, b)
             if k == 0.0:
@@ -661,7 +687,7 @@ def spring_update_lam(x, idx, rest, alpha, alpha2, lam, hard_k):
             t = x[a, r] - x[b, r]
             d += t * t
         lam[j] += k * (math.sqrt(d) - rest[j])
-        if lam[j] < 0.0 and not alpha2[j] < _INF:
+        if lam[j] < 0.0 and alpha2[j] > 0.0:  # tension only, or soft in compression
             lam[j] = 0.0
 
 
@@ -690,17 +716,27 @@ def edge_energy_stencils(self, ctx, d):
     return [d.idx]
 
 
+def _energy_alpha2(self, d):
+    """The compression compliances of the implicit energy: ``d.alpha2`` (hard rows bilateral,
+    or tension only), or with ``implicit_compression: near_contacts`` this substep's Nucleus
+    compliances (``alpha2_substep``: soft on edges with a vertex in a contact row)."""
+    if (getattr(self.params, "implicit_compression", "hard") == "near_contacts"
+            and getattr(d, "alpha2_substep", None) is not None):
+        return d.alpha2_substep
+    return d.alpha2
+
+
 def edge_energy(self, ctx, d, x, grad, hess, opts):
     """Spring energy of a Packed set of distance rows (see ``spring_energy``). Stretch damping
     (``beta``) is not part of the energy (backward Euler damps by itself)."""
-    return spring_energy(x, d.idx, d.rest, d.alpha, d.alpha2, edge_multipliers(self, d),
-                         opts.hard_k, opts.mode, grad_or_dummy(grad, opts),
-                         hess_or_dummy(hess, 0, opts))
+    return spring_energy(x, d.idx, d.rest, d.alpha, _energy_alpha2(self, d),
+                         edge_multipliers(self, d), opts.hard_k, opts.mode,
+                         grad_or_dummy(grad, opts), hess_or_dummy(hess, 0, opts))
 
 
 def edge_update_multipliers(self, ctx, d, x, opts):
-    spring_update_lam(x, d.idx, d.rest, d.alpha, d.alpha2, edge_multipliers(self, d),
-                      opts.hard_k)
+    spring_update_lam(x, d.idx, d.rest, d.alpha, _energy_alpha2(self, d),
+                      edge_multipliers(self, d), opts.hard_k)
 
 
 # the implicit energy protocol on the Nucleus constraint type of this effect
