@@ -132,3 +132,28 @@ def test_crease_compression_energy(tmp_path):
         assert (r["pen"] == 0).all() and (r["self"] == 0).all()
     assert hard["stretch_J"] > 1.0
     assert soft["stretch_J"] < 0.05 * hard["stretch_J"]  # measured 0.014
+
+
+@pytest.mark.slow
+def test_sleeve_elbow_implicit_bounds(tmp_path):
+    """Issue #11's done-when for the elbow with the implicit solver: the whole bend and
+    straightening with the mechanisms of impossible collisions (compliant_kinematics: energy,
+    compliant_depth 0.01, proximity-tolerant contacts), implicit_compression near_contacts and
+    contact_newton_iterations 100: finite, no intersecting pair (sleeve-arm or sleeve self) in
+    any frame, the sleeve within 0.73 m/s near the joint and 1.47 m/s anywhere (the Nucleus
+    tests' bounds, tests/test_elbow.py). Measured: 0.707 m/s near the joint (frame 17), 0.979
+    m/s overall (frame 47), 0 pairs in every frame, ~220 s CPU (4x the run at 20 Newton
+    iterations). At 20 iterations 1.050 m/s near the joint (11 frames over), with hard
+    compression 1.300 m/s at 20 and 1.626 m/s at 100 (graphs/bench/implicit_compliant_elbow.py)."""
+    r = _run(tmp_path, "near_contacts", 60, "compliant_kinematics: energy, compliant_depth: "
+             "0.01, contact_newton_iterations: 100")
+    print(f"implicit, compliant, near_contacts, 100 Newton: max sleeve speed "
+          f"{r['vmax'][3:].max():.3f} m/s (frame {int(np.argmax(r['vmax'][3:])) + 5}), near "
+          f"the joint {r['vnear'][3:].max():.3f} m/s (frame "
+          f"{int(np.argmax(r['vnear'][3:])) + 5}); intersecting pairs max {r['pen'].max()}, "
+          f"self {r['self'].max()}")
+    assert r["finite"]
+    assert (r["pen"] == 0).all()  # measured 0 in every frame
+    assert (r["self"] == 0).all()  # measured 0
+    assert r["vmax"][3:].max() < SPEED_BOUND  # measured 0.979 m/s
+    assert r["vnear"][3:].max() < PINCH_SPEED_BOUND  # measured 0.707 m/s

@@ -384,7 +384,11 @@ class StretchParams(ConstraintParams):
         "Near-joint speed (bound 0.73 m/s; frames 5-61, 0 intersecting pairs in every frame; "
         "CPU of the 60 frames): 'hard' 1.071 m/s, 12 frames over the bound, 47.4 s; "
         "'near_contacts' 1.069 m/s, 8 frames, 50.6 s: the rest is Newton stopping at its cap "
-        "far from the minimum (tests/test_implicit_elbow.py, the bench's docstring).")
+        "far from the minimum. With compliant_kinematics: energy, compliant_depth 0.01 and "
+        "contact_newton_iterations 20 / 60 / 100: 1.050 m/s, 11 frames / 0.871 m/s, 2 frames "
+        "/ 0.707 m/s, 0 frames (largest sleeve speed 0.979 m/s, 222 s: the elbow's bounds "
+        "met, tests/test_implicit_elbow.py); hard compression there 1.300 m/s at 20 and "
+        "1.626 m/s at 100 (graphs/bench/implicit_compliant_elbow.py's table).")
     joint_long_range: bool | Literal["pinch"] = Field(
         "pinch", description="Project the long-range rows also in every joint pass of the "
         "final collision rounds and of the CCD rounds (before the strain limits and the "

@@ -31,15 +31,20 @@ intersecting pairs (sleeve-arm and sleeve self) in every frame of each:
     --dirichlet --compression near_contacts                  1.069 (32), 8, 1.157, 51
     0 (compliant)                                            1.300 (44), 13, 1.300, 52
     0 --compression near_contacts                            1.050 (6), 11, 1.312, 85
+    0 --compression near_contacts                            0.871 (8), 2, 1.226, 140
+        contact_newton_iterations=60
     0 --compression near_contacts                            0.707 (17), 0, 0.979, 222
         contact_newton_iterations=100
+    --dirichlet --compression near_contacts                  0.890 (23), 1 (run stopped
+        contact_newton_iterations=100                         at frame 24), 0.890, 80
     Nucleus (the scene as it is; pairs not counted here)      0.609 (27), 0, 0.975, 21
 
-The last implicit row meets issue #11's bounds for the elbow (0.73 m/s near the joint, 1.47
-m/s overall, no intersection) at 4x the CPU of the compliant run; Newton stops at its cap of
-100 in every substep, as at 20. compliant (0) with contact_newton_iterations=100 and hard
-compression: 1.626 m/s (frame 5), 12 frames over to frame 49 (131 s): more iterations release
-the energy the hard rows hold faster.
+The compliant run with near_contacts and 100 Newton iterations meets issue #11's bounds for the
+elbow (0.73 m/s near the joint, 1.47 m/s overall, no intersection; tests/test_implicit_elbow.py)
+at 4x the CPU of the compliant run; without any one of the three it fails (the rows above, and
+compliant (0) with contact_newton_iterations=100 and hard compression: 1.626 m/s (frame 5), 12
+frames over to frame 49, 131 s: more iterations release the energy the hard rows hold faster).
+Newton stops at its cap of 100 in every substep, as at 20.
 
 Cause (--substeps 36 45 with compliant 0; --substeps 2 13 --dirichlet): the speed is in the
 Newton solution itself (the projection pass moves the fastest vertex by 0-0.5 mm); single
