@@ -44,7 +44,12 @@ elbow (0.73 m/s near the joint, 1.47 m/s overall, no intersection; tests/test_im
 at 4x the CPU of the compliant run; without any one of the three it fails (the rows above, and
 compliant (0) with contact_newton_iterations=100 and hard compression: 1.626 m/s (frame 5), 12
 frames over to frame 49, 131 s: more iterations release the energy the hard rows hold faster).
-Newton stops at its cap of 100 in every substep, as at 20.
+Newton stops at its cap of 100 in every substep, as at 20. The other scenes of issue #11 with
+these settings (graphs/bench/implicit_knee.py's run with the stretch override; largest cloth
+speed from frame 5, 0 intersecting pairs in every frame of each): pinch 0.005 m/s (bound 0.3),
+sleeve_pinch 0.371 m/s (bound 0.3: fails; 0.257 m/s with near_contacts at 20 iterations); the
+trouser knee with near_contacts at 20 iterations 1.703 m/s in frames 37-48 (bound 1.65: fails;
+hard compression 1.573 there), 2.143 m/s from frame 8 (bound 2.2), not run at 100.
 
 Cause (--substeps 36 45 with compliant 0; --substeps 2 13 --dirichlet): the speed is in the
 Newton solution itself (the projection pass moves the fastest vertex by 0-0.5 mm); single
