@@ -17,6 +17,27 @@ def write_scene(tmp_path: Path, text: str, name: str = "scene.yaml") -> Path:
     return p
 
 
+def resumed_ends(make_sim, saved, key, frames=4):
+    """Final positions of two runs restored from the checkpoint arrays ``saved`` and stepped
+    ``frames`` frames: as saved, and with the array ``key`` zeroed (a test that a run state
+    carries over: the first must continue bitwise, the second must not)."""
+    import numpy as np
+
+    from lokigraph import checkpoint
+
+    ends = []
+    for drop in (False, True):
+        b = make_sim()
+        arrays = dict(saved)
+        if drop:
+            arrays[key] = np.zeros_like(arrays[key])
+        checkpoint.restore(b, arrays)
+        for _ in range(frames):
+            b.step_frame()
+        ends.append(b.state.particle_q.copy())
+    return ends
+
+
 def run_cli(*args, cwd=None, env=None):
     """Run the CLI in a subprocess (checks exit codes and that no traceback leaks)."""
     e = dict(os.environ)

@@ -7,7 +7,7 @@ graphs/bench/implicit_pressure.py)."""
 import numpy as np
 import pytest
 
-from conftest import EXAMPLES
+from conftest import EXAMPLES, resumed_ends
 from lokigraph.api import compile_file
 from lokigraph.run import Simulation
 
@@ -35,7 +35,7 @@ def _pressure(sim):
 
 def _measure(sim, frames=FRAMES):
     """Per frame: relative volume error, largest speed, lowest height, statistics."""
-    from behaviors.materials.pressure import mesh_volume
+    from lokigraph.behaviors.materials.pressure import mesh_volume
 
     _, d = _pressure(sim)
     tris, target = d.items[0][0], d.items[0][1]
@@ -112,8 +112,8 @@ def test_energy_gradient_and_hessian_match_finite_differences(tmp_path):
     (d2V/dx2) v, with k the rank-one term the solver gets (``energy_lowrank``) and f = lam +
     k C; the solver's CG product (sparse diagonal blocks + ``lowrank_matvec``) applies k g g^T
     exactly, with its diagonal blocks in the matrix or not."""
-    from behaviors.solvers.implicit.energy import EnergyOptions
-    from behaviors.solvers.implicit.linear import lowrank_matvec
+    from lokigraph.behaviors.solvers.implicit.energy import EnergyOptions
+    from lokigraph.behaviors.solvers.implicit.linear import lowrank_matvec
 
     sim = _sim(tmp_path, "fd.yaml", implicit="energy", frames=4)
     for _ in range(2):
@@ -139,7 +139,7 @@ def test_energy_gradient_and_hessian_match_finite_differences(tmp_path):
     (k, gv), = b.energy_lowrank(d)
     gv = gv.copy()
     assert k > 0.0
-    from behaviors.materials.pressure import mesh_volume
+    from lokigraph.behaviors.materials.pressure import mesh_volume
     C = mesh_volume(x, r.tris) - r.target
     f = r.mult[0] + k * C
     assert np.allclose(g, f * gv, rtol=1e-12, atol=0.0)
@@ -177,7 +177,7 @@ class _Ctx:
 def test_projected_hessian_blocks_are_psd(tmp_path):
     """implicit_hessian: projected: each triangle's block of f d2V/dx2 clamped to its positive
     eigenvalues (PSD; its trace is that of the positive part, the unclamped trace being 0)."""
-    from behaviors.materials.pressure import volume_hessian_projected
+    from lokigraph.behaviors.materials.pressure import volume_hessian_projected
 
     sim = _sim(tmp_path, "psd.yaml", implicit="energy", frames=2)
     _, d = _pressure(sim)
@@ -192,7 +192,7 @@ def test_projected_hessian_blocks_are_psd(tmp_path):
 
 
 def test_open_meshes_stay_projected():
-    from behaviors.materials.pressure import _closed
+    from lokigraph.behaviors.materials.pressure import _closed
     from lokigraph.generators import grid, icosphere
 
     g = icosphere(radius=0.2, subdivisions=1)
@@ -213,15 +213,6 @@ def test_resume_carries_the_multiplier(tmp_path):
             saved = checkpoint.capture(a)
     key = [k for k in saved if k.endswith("/implicit_lam") and "pressure" in k]
     assert len(key) == 1 and (saved[key[0]] != 0).all()
-    ends = []
-    for drop in (False, True):
-        b = Simulation(compile_file(tmp_path / "resume.yaml"))
-        arrays = dict(saved)
-        if drop:
-            arrays[key[0]] = np.zeros_like(arrays[key[0]])
-        checkpoint.restore(b, arrays)
-        for _ in range(4):
-            b.step_frame()
-        ends.append(b.state.particle_q.copy())
+    ends = resumed_ends(lambda: Simulation(compile_file(tmp_path / "resume.yaml")), saved, key[0])
     assert np.array_equal(ends[0], a.state.particle_q)
     assert not np.array_equal(ends[1], a.state.particle_q)
