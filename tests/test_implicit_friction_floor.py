@@ -35,8 +35,10 @@ def test_pressure_ball_lands_with_the_floor_and_not_without(tmp_path):
     with_floor = _ball(tmp_path, 0.2)  # the default
     exact = _ball(tmp_path, 0.0)
     assert with_floor[:10].max() < LANDING_BOUND  # free fall (frames 1-10)
-    assert with_floor[11:].max() < LANDING_BOUND, with_floor  # measured 3.67 m/s over 48 frames
-    assert exact[11:].max() > 2 * LANDING_BOUND, exact  # measured 41-490 m/s: the cause
+    assert with_floor[11:].max() < LANDING_BOUND, with_floor  # measured 2.7 m/s (48 frames)
+    # the cause: without the floor the bound fails (measured 8.7 m/s at frame 12 with the
+    # volume row in the solve; 489 m/s by frame 37 over 48 frames, 805 without Pressure)
+    assert exact[11:].max() > LANDING_BOUND, exact
 
 
 @pytest.mark.parametrize("floor", [0.0, 0.2, 0.5, 1.0])
