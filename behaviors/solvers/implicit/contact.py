@@ -267,15 +267,39 @@ def safety_project(x, fixed, kinds, centers, dirs, radii, lengths):
 # direction, exact for a vertex against a kinematic collider.
 
 
+#: ``implicit_solver.edge_endpoint_rows`` as the lag kernels' ``endpoints`` argument
+ENDPOINTS = {"keep": 0, "skip": 1, "skip_collider": 2}
+
+
 @njit(cache=True, inline="always")
-def _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r):
-    """``lag_rows`` for row r; returns 1 where the row is active (C < 0, a free vertex)."""
+def _endpoint_row(fixed, rows, coef, r, mode):
+    """Is edge-edge row r (coefficients 1 - s, s, -(1 - t), -t lagged) one that
+    ``edge_endpoint_rows`` leaves out: mode 1 its closest point is an end of either edge (s or t
+    is 0 or 1; the vertex-face rows of that end hold the same contact), mode 2 only where that
+    end is a collider's (both vertices of the clamped edge Dirichlet) and the closest point on
+    the other edge is inside it (a collider's vertex against the inside of an edge: the rows of
+    that vertex against the edge's faces hold it)."""
+    ca = coef[r, 0] == 0.0 or coef[r, 1] == 0.0
+    cb = coef[r, 2] == 0.0 or coef[r, 3] == 0.0
+    if mode == 1:
+        return ca or cb
+    if cb and not ca and fixed[rows[r, 2]] and fixed[rows[r, 3]]:
+        return True
+    return ca and not cb and fixed[rows[r, 0]] and fixed[rows[r, 1]]
+
+
+@njit(cache=True, inline="always")
+def _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r, endpoints=0):
+    """``lag_rows`` for row r; returns 1 where the row is active (C < 0, a free vertex).
+    ``endpoints`` (``ENDPOINTS``): edge-edge rows left out of the energy (stiffness 0)."""
     _, coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = row_coefficients(x, rows, is_vf, r)
     mk = 0.0
     for j in range(4):
         a = rows[r, j]
         if not fixed[a] and coef[r, j] != 0.0 and mass[a] > mk:
             mk = mass[a]
+    if endpoints and not is_vf and _endpoint_row(fixed, rows, coef, r, endpoints):
+        mk = 0.0
     kr[r] = h2k * mk
     C = -target[r]
     for j in range(4):
@@ -287,12 +311,14 @@ def _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r):
 
 
 @njit(cache=True)
-def lag_rows(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam):
+def lag_rows(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, endpoints=0):
     """Coefficients coef[r] (closest points at x), row stiffness kr[r] = h2k * the largest
-    mass of its free vertices, and the normal forces lam[r] at x. Returns the active count."""
+    mass of its free vertices (0 for the rows ``endpoints`` leaves out, ``_endpoint_row``), and
+    the normal forces lam[r] at x. Returns the active count."""
     count = 0
     for r in range(rows.shape[0]):
-        count += _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
+        count += _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r,
+                          endpoints)
     return count
 
 
@@ -320,7 +346,7 @@ def _gap_bound(x, rows, nrm, target, is_vf, r):
 
 @njit(cache=True, inline="always")
 def _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reach, mark, sel, r,
-              count, ns, dl, top, dgap):
+              count, ns, dl, top, dgap, endpoints):
     """The visit of row r by ``lag_rows_live`` / ``lag_rows_sel``: a live row (normal force
     > 0, or gap bound below ``reach`` + ``LIVE_SLACK``) is lagged, marked and appended to
     ``sel`` at ``ns``; any other gets lam 0 and is unmarked. Returns the running (active
@@ -328,7 +354,8 @@ def _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reac
     change over stiffness)."""
     old = lam[r]
     if old > 0.0 or _gap_bound(x, rows, nrm, target, is_vf, r) < reach + LIVE_SLACK:
-        count += _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
+        count += _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r,
+                          endpoints)
         mark[r] = 1
         sel[ns] = r
         ns += 1
@@ -345,7 +372,7 @@ def _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reac
 
 @njit(cache=True)
 def lag_rows_live(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reach, mark,
-                  sel):
+                  sel, endpoints=0):
     """``lag_rows`` for the live rows at x only: a row whose gap bound (``_gap_bound``) is at
     least ``reach`` (+ ``LIVE_SLACK``) at x and whose normal force ``lam`` was 0 gets lam = 0
     and keeps its coefficients (it is inactive at x with any: no energy, gradient or Hessian,
@@ -360,13 +387,13 @@ def lag_rows_live(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, 
     for r in range(rows.shape[0]):
         count, ns, dl, top, dgap = _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf,
                                              coef, kr, lam, reach, mark, sel, r, count, ns, dl,
-                                             top, dgap)
+                                             top, dgap, endpoints)
     return count, ns, dl, top, dgap
 
 
 @njit(cache=True)
 def lag_rows_sel(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reach, mark,
-                 sel, ns_in):
+                 sel, ns_in, endpoints=0):
     """``lag_rows_live`` visiting only the rows listed in ``sel[:ns_in]`` (ascending), with the
     same results, when x lies on a segment over which ``extend_live`` has just marked every row
     whose gap bound drops below ``LIVE_SLACK`` (``reach`` 0): an unmarked row has lam 0 and a
@@ -381,7 +408,7 @@ def lag_rows_sel(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r
         r = sel[i]
         count, ns, dl, top, dgap = _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf,
                                              coef, kr, lam, reach, mark, sel, r, count, ns, dl,
-                                             top, dgap)
+                                             top, dgap, endpoints)
     return count, ns, dl, top, dgap
 
 
@@ -390,7 +417,7 @@ _ALL_MOVED = np.zeros(0, np.bool_)  # ``extend_live``: no ``moved`` flags, every
 
 @njit(cache=True)
 def extend_live(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, mark, sel,
-                moved=_ALL_MOVED):
+                moved=_ALL_MOVED, endpoints=0):
     """Before a line search from x toward xb (or an energy evaluation at xb with the rows
     lagged at x): the rows not live at x (``mark`` 0) whose gap bound is below
     ``LIVE_SLACK`` at xb join the live rows, lagged at x (their normal force there is 0);
@@ -409,7 +436,8 @@ def extend_live(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam
         if mark[r] == 0 and (not some or moved[rows[r, 0]] or moved[rows[r, 1]]
                              or moved[rows[r, 2]] or moved[rows[r, 3]]):
             if _gap_bound(xb, rows, nrm, target, is_vf, r) < LIVE_SLACK:
-                _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r)
+                _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r,
+                         endpoints)
                 mark[r] = 1
         if mark[r]:
             sel[ns] = r

@@ -188,9 +188,9 @@ from lokigraph.errors import InputError
 
 from ...collision.contacts import _vertex_normals_kernel
 from ..damping import apply_damping, bind_damping
-from .contact import (_ALL_MOVED, contact_energy_al, extend_live, lag_contacts_al, lag_rows,
-                      lag_rows_live, lag_rows_sel, mark_closing, row_energy, row_energy_coupled,
-                      row_residuals, safety_project, start_targets_on,
+from .contact import (_ALL_MOVED, ENDPOINTS, contact_energy_al, extend_live, lag_contacts_al,
+                      lag_rows, lag_rows_live, lag_rows_sel, mark_closing, row_energy,
+                      row_energy_coupled, row_residuals, safety_project, start_targets_on,
                       update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, gather_blocks, gather_map, limit_energy
 from .compliant import compliant_edges, shape_energy
@@ -433,6 +433,29 @@ class ImplicitParams(Params):
         "the 0.05 mm bound). The contact rows of the collision pipeline keep the exact block: "
         "there 0.2 left 2 of the 30 frames of tests/test_implicit_contact.py's drop converged "
         "within 100 Newton iterations against 12.")
+    edge_endpoint_rows: Literal["keep", "skip", "skip_collider"] = Field(
+        "keep", description="Edge-edge contact rows (mesh_contact: energy) whose lagged "
+        "closest point is an end of an edge are the same contact as the vertex-face rows of "
+        "that end, so at a corner one contact counts several times in the solve's penalty: "
+        "'keep' (the default) keeps them; 'skip' leaves every such row out of the Newton "
+        "energy (stiffness 0 while its closest point stays at the end; the projection pass "
+        "still holds every row); 'skip_collider' only those whose end is a collider's vertex "
+        "(both vertices of that edge Dirichlet) against the inside of the other edge (opt-in; "
+        "not for hair: a strand's edges have no faces to hold the end). Measured on "
+        "graphs/examples/skirt_follow.yaml (the skirt hangs over the body's bottom rim, every "
+        "vertex at its contact distance; graphs/bench/implicit_rim.py): at frame 30 the "
+        "largest normal forces, 11-17 N each on a 0.05 kg skirt, 1,300-1,800 N summed over the "
+        "rows, sit at the rim, each contact of a skirt vertex there in 1 vertex-face and 4-5 "
+        "edge-edge rows with the same gap; Newton ends at its cap (20) in every substep, calm "
+        "frames too. Largest skirt speed over 48 frames (Nucleus 0.458 m/s): keep 0.941, skip "
+        "0.342, skip_collider 0.529 m/s. But, one run each (NUMBA_NUM_THREADS=1, "
+        "graphs/bench/implicit_knee.py; near-joint / crease speeds move with any change "
+        "there): sleeve_elbow near the joint keep 1.071, skip 1.347, skip_collider 1.065 m/s "
+        "(bound 0.73; largest from frame 8 1.048 / 1.347 / 1.282, bound 1.47); trouser_knee "
+        "(72 frames) frames 37-48 1.624 / 1.751 / 2.213 m/s (bound 1.65), from frame 8 2.352 / "
+        "3.048 / 2.213 (bound 2.2); sleeve_pinch (compliant_kinematics: energy) from frame 8 "
+        "0.140 / 0.079 / 0.098 m/s; 0 intersecting pairs in every frame of every run: not the "
+        "default.")
     coupling_iterations: int = Field(
         4, ge=1, le=100, description="Most solid solves per substep when a coupling runs inside "
         "the solver (two-way fluid: Avatar supplement Figure 2, steps A-C repeated until the "
@@ -1168,25 +1191,26 @@ class ImplicitSolver(Behavior):
         h = ctx.dt
         m = ctx.model
         h2k = self.params.contact_stiffness / (h * h)
+        ep = ENDPOINTS[self.params.edge_endpoint_rows]
         act, dl, top, dgap = 0, 0.0, 0.0, 0.0
         for rows, nrm, tgt, mu, coef, kr, lam, lam_prev, is_vf, mark, sel, ns in d.rows["sets"]:
             if live and on_segment and self.params.contact_reach == 0.0:
                 a, ns[0], dl1, top1, dgap1 = lag_rows_sel(
                     x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf, coef, kr, lam,
-                    0.0, mark, sel, ns[0])
+                    0.0, mark, sel, ns[0], ep)
                 act += a
                 dl, top, dgap = max(dl, dl1), max(top, top1), max(dgap, dgap1)
                 continue
             if live:  # the changes of the live rows (the others have lam 0 before and after)
                 a, ns[0], dl1, top1, dgap1 = lag_rows_live(
                     x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf, coef, kr, lam,
-                    self.params.contact_reach, mark, sel)
+                    self.params.contact_reach, mark, sel, ep)
                 act += a
                 dl, top, dgap = max(dl, dl1), max(top, top1), max(dgap, dgap1)
                 continue
             lam_prev[:] = lam
             act += lag_rows(x, d.cur_fixed, m.particle_mass, h2k, rows, nrm, tgt, is_vf,
-                            coef, kr, lam)
+                            coef, kr, lam, ep)
             mark[:] = 1
             sel[:] = np.arange(len(sel))
             ns[0] = len(sel)
@@ -1211,7 +1235,8 @@ class ImplicitSolver(Behavior):
         mv = _ALL_MOVED if moved is None else moved
         for rows, nrm, tgt, mu, coef, kr, lam, _lp, is_vf, mark, sel, ns in d.rows["sets"]:
             ns[0] = extend_live(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k, rows, nrm,
-                                tgt, is_vf, coef, kr, lam, mark, sel, mv)
+                                tgt, is_vf, coef, kr, lam, mark, sel, mv,
+                                ENDPOINTS[self.params.edge_endpoint_rows])
 
     def _row_residuals(self, ctx, d, x, xt):
         """The contact rows' complementarity residuals at the Newton solution x into the
