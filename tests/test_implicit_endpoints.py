@@ -37,7 +37,7 @@ def test_endpoint_rows_left_out(mode, kept):
     m = len(rows)
     mass = np.full(len(x), 1e-3)
     tgt = np.full(m, 0.002)
-    ep = ENDPOINTS[mode]
+    ep = np.full(len(x), ENDPOINTS[mode], np.int8)
     coef, kr, lam = np.zeros((m, 4)), np.zeros(m), np.zeros(m)
     active = lag_rows(x, fixed, mass, 1e4, rows, nrm, tgt, False, coef, kr, lam, ep)
     # the closest points: inside both edges in row 0, at an end of the second edge in rows 1-2
@@ -59,6 +59,19 @@ def test_endpoint_rows_left_out(mode, kept):
     assert (kr3 == kr).all()
 
 
+def test_curve_vertices_keep_their_rows():
+    """A row with a vertex of a curve (``endpoints`` 0 there: a strand's edges have no faces
+    whose vertex-face rows could hold the end's contact) is kept in every mode."""
+    x, fixed, rows, nrm = _rows()
+    m = len(rows)
+    ep = np.full(len(x), ENDPOINTS["skip"], np.int8)
+    ep[5:] = 0  # the free edge (5, 6) is a strand's
+    coef, kr, lam = np.zeros((m, 4)), np.zeros(m), np.zeros(m)
+    lag_rows(x, fixed, np.full(len(x), 1e-3), 1e4, rows, nrm, np.full(m, 0.002), False, coef,
+             kr, lam, ep)
+    assert ((kr > 0.0) == np.array([True, False, True])).all()
+
+
 def test_vertex_face_rows_are_kept():
     """The setting touches edge-edge rows only: a vertex-face row whose closest point is a
     corner of its triangle (a zero barycentric coefficient) keeps its stiffness."""
@@ -67,7 +80,7 @@ def test_vertex_face_rows_are_kept():
     rows, nrm = np.array([[0, 1, 2, 3]]), np.array([[0.0, -1.0, 0.0]])
     coef, kr, lam = np.zeros((1, 4)), np.zeros(1), np.zeros(1)
     lag_rows(x, fixed, np.full(4, 1e-3), 1e4, rows, nrm, np.full(1, 0.002), True, coef, kr,
-             lam, ENDPOINTS["skip"])
+             lam, np.full(4, ENDPOINTS["skip"], np.int8))
     assert (coef[0] == 0.0).any() and kr[0] > 0.0
 
 

@@ -1,5 +1,5 @@
-"""A skirt over a collider's rim with the implicit solver (issue #11): graphs/examples/skirt_follow.yaml
-run with Nucleus and with ``solver: implicit`` at each ``edge_endpoint_rows`` setting, per frame
+"""A skirt over a collider's rim with the implicit solver (issue #11):
+graphs/examples/skirt_follow.yaml run with Nucleus and with ``solver: implicit`` at each ``edge_endpoint_rows`` setting, per frame
 the skirt's largest speed [m/s] (which vertex, its ring: 0 the hem .. 8 the pinned waist) and the
 Newton iterations of the frame; with ``--rows FRAME`` the contact rows with the largest normal
 forces at some Newton iterations of that frame's substeps (the implicit solver's ``trace`` hook).

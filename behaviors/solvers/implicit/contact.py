@@ -267,18 +267,27 @@ def safety_project(x, fixed, kinds, centers, dirs, radii, lengths):
 # direction, exact for a vertex against a kinematic collider.
 
 
-#: ``implicit_solver.edge_endpoint_rows`` as the lag kernels' ``endpoints`` argument
+#: ``implicit_solver.edge_endpoint_rows`` as the mode of the vertices of triangle meshes in the
+#: lag kernels' ``endpoints`` array (per vertex; 0 at the vertices of curves, which have no
+#: faces whose vertex-face rows could hold an end's contact)
 ENDPOINTS = {"keep": 0, "skip": 1, "skip_collider": 2}
+#: no ``endpoints`` array: every row kept
+NO_ENDPOINTS = np.zeros(0, np.int8)
 
 
 @njit(cache=True, inline="always")
-def _endpoint_row(fixed, rows, coef, r, mode):
+def _endpoint_row(fixed, rows, coef, r, endpoints):
     """Is edge-edge row r (coefficients 1 - s, s, -(1 - t), -t lagged) one that
-    ``edge_endpoint_rows`` leaves out: mode 1 its closest point is an end of either edge (s or t
-    is 0 or 1; the vertex-face rows of that end hold the same contact), mode 2 only where that
-    end is a collider's (both vertices of the clamped edge Dirichlet) and the closest point on
-    the other edge is inside it (a collider's vertex against the inside of an edge: the rows of
-    that vertex against the edge's faces hold it)."""
+    ``edge_endpoint_rows`` leaves out? Its mode is the smallest of its four vertices'
+    ``endpoints``: 1 its closest point is an end of either edge (s or t is 0 or 1; the
+    vertex-face rows of that end hold the same contact), 2 only where that end is a collider's
+    (both vertices of the clamped edge Dirichlet) and the closest point on the other edge is
+    inside it (a collider's vertex against the inside of an edge: the rows of that vertex
+    against the edge's faces hold it), 0 none."""
+    mode = min(min(endpoints[rows[r, 0]], endpoints[rows[r, 1]]),
+               min(endpoints[rows[r, 2]], endpoints[rows[r, 3]]))
+    if mode == 0:
+        return False
     ca = coef[r, 0] == 0.0 or coef[r, 1] == 0.0
     cb = coef[r, 2] == 0.0 or coef[r, 3] == 0.0
     if mode == 1:
@@ -289,16 +298,18 @@ def _endpoint_row(fixed, rows, coef, r, mode):
 
 
 @njit(cache=True, inline="always")
-def _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r, endpoints=0):
+def _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r,
+             endpoints=NO_ENDPOINTS):
     """``lag_rows`` for row r; returns 1 where the row is active (C < 0, a free vertex).
-    ``endpoints`` (``ENDPOINTS``): edge-edge rows left out of the energy (stiffness 0)."""
+    ``endpoints`` (int8 per vertex, ``ENDPOINTS``; empty: none): edge-edge rows left out of the
+    energy (stiffness 0)."""
     _, coef[r, 0], coef[r, 1], coef[r, 2], coef[r, 3] = row_coefficients(x, rows, is_vf, r)
     mk = 0.0
     for j in range(4):
         a = rows[r, j]
         if not fixed[a] and coef[r, j] != 0.0 and mass[a] > mk:
             mk = mass[a]
-    if endpoints and not is_vf and _endpoint_row(fixed, rows, coef, r, endpoints):
+    if endpoints.shape[0] and not is_vf and _endpoint_row(fixed, rows, coef, r, endpoints):
         mk = 0.0
     kr[r] = h2k * mk
     C = -target[r]
@@ -311,7 +322,8 @@ def _lag_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, r, en
 
 
 @njit(cache=True)
-def lag_rows(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, endpoints=0):
+def lag_rows(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam,
+             endpoints=NO_ENDPOINTS):
     """Coefficients coef[r] (closest points at x), row stiffness kr[r] = h2k * the largest
     mass of its free vertices (0 for the rows ``endpoints`` leaves out, ``_endpoint_row``), and
     the normal forces lam[r] at x. Returns the active count."""
@@ -372,7 +384,7 @@ def _live_row(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reac
 
 @njit(cache=True)
 def lag_rows_live(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reach, mark,
-                  sel, endpoints=0):
+                  sel, endpoints=NO_ENDPOINTS):
     """``lag_rows`` for the live rows at x only: a row whose gap bound (``_gap_bound``) is at
     least ``reach`` (+ ``LIVE_SLACK``) at x and whose normal force ``lam`` was 0 gets lam = 0
     and keeps its coefficients (it is inactive at x with any: no energy, gradient or Hessian,
@@ -393,7 +405,7 @@ def lag_rows_live(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, 
 
 @njit(cache=True)
 def lag_rows_sel(x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, reach, mark,
-                 sel, ns_in, endpoints=0):
+                 sel, ns_in, endpoints=NO_ENDPOINTS):
     """``lag_rows_live`` visiting only the rows listed in ``sel[:ns_in]`` (ascending), with the
     same results, when x lies on a segment over which ``extend_live`` has just marked every row
     whose gap bound drops below ``LIVE_SLACK`` (``reach`` 0): an unmarked row has lam 0 and a
@@ -417,7 +429,7 @@ _ALL_MOVED = np.zeros(0, np.bool_)  # ``extend_live``: no ``moved`` flags, every
 
 @njit(cache=True)
 def extend_live(xb, x, fixed, mass, h2k, rows, nrm, target, is_vf, coef, kr, lam, mark, sel,
-                moved=_ALL_MOVED, endpoints=0):
+                moved=_ALL_MOVED, endpoints=NO_ENDPOINTS):
     """Before a line search from x toward xb (or an energy evaluation at xb with the rows
     lagged at x): the rows not live at x (``mark`` 0) whose gap bound is below
     ``LIVE_SLACK`` at xb join the live rows, lagged at x (their normal force there is 0);
