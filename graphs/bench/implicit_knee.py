@@ -10,7 +10,8 @@ measure them with Nucleus.
 
 Scenes: knee, pinch, sleeve_pinch, sleeve_elbow. ``scale=10`` multiplies the painted compliant
 stiffness (a measurement of compliant_kinematics: energy, see the end). Extra ``k=v``
-arguments become ``graph_overrides: {implicit_solver: {k: v}}``. Columns: intersecting cloth-body pairs, cloth
+arguments become ``graph_overrides: {implicit_solver: {k: v}}``; ``node.k=v`` that graph
+node's (``stretch.implicit_compression=near_contacts``). Columns: intersecting cloth-body pairs, cloth
 self pairs, largest cloth speed [m/s], Newton iterations per substep (mean, largest), line-search
 halvings, the projection pass's largest move [m] and the contact rows' normal complementarity
 residual at the Newton solution (``max_complementarity`` [mm]).
@@ -108,12 +109,19 @@ SCENES = {
 
 
 def scene_text(name, overrides=None):
-    """The example's text with ``solver: implicit`` (and implicit_solver overrides)."""
+    """The example's text with ``solver: implicit`` (and implicit_solver overrides; a key
+    ``NODE.PARAM`` overrides that graph node's parameter instead, e.g.
+    ``stretch.implicit_compression``)."""
     text = (EX / SCENES[name][0]).read_text()
-    ov = ", ".join(f"{k}: {v}" for k, v in (overrides or {}).items())
+    nodes = {}
+    for k, v in (overrides or {}).items():
+        node, _, param = k.rpartition(".")
+        nodes.setdefault(node or "implicit_solver", {})[param] = v
+    ov = ", ".join(f"{n}: {{{', '.join(f'{k}: {v}' for k, v in p.items())}}}"
+                   for n, p in nodes.items())
     head = "lokigraph: 1\nsolver: implicit\n"
     if ov:
-        head += f"graph_overrides: {{implicit_solver: {{{ov}}}}}\n"
+        head += f"graph_overrides: {{{ov}}}\n"
     assert text.count("lokigraph: 1\n") == 1
     return text.replace("lokigraph: 1\n", head, 1)
 
