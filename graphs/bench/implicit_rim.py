@@ -1,8 +1,10 @@
 """A skirt over a collider's rim with the implicit solver (issue #11):
-graphs/examples/skirt_follow.yaml run with Nucleus and with ``solver: implicit`` at each ``edge_endpoint_rows`` setting, per frame
-the skirt's largest speed [m/s] (which vertex, its ring: 0 the hem .. 8 the pinned waist) and the
-Newton iterations of the frame; with ``--rows FRAME`` the contact rows with the largest normal
-forces at some Newton iterations of that frame's substeps (the implicit solver's ``trace`` hook).
+graphs/examples/skirt_follow.yaml run with Nucleus and with ``solver: implicit`` at each
+``edge_endpoint_rows`` setting; per frame the skirt's largest speed [m/s] (which vertex, its
+ring: 0 the hem .. 8 the pinned waist) and the Newton iterations of the frame, per run the
+largest count of intersecting pairs (skirt-body and skirt self) in a frame; with ``--rows
+FRAME`` the contact rows with the largest normal forces at some Newton iterations of that
+frame's substeps (the implicit solver's ``trace`` hook).
 
     NUMBA_NUM_THREADS=1 .venv/bin/python graphs/bench/implicit_rim.py [frames] [--rows F] \
         [--modes keep skip skip_collider]
@@ -10,8 +12,7 @@ forces at some Newton iterations of that frame's substeps (the implicit solver's
 The skirt (24 x 9 vertices, radius 0.106 m, 3 mm thickness) hangs over the body (radius 0.1 m,
 3 mm thickness, capped at y = 0.75 m): every skirt vertex sits at its contact distance, and the
 skirt's rings 1-2 wrap the body's bottom rim. Measured (48 frames, one thread, one run after the
-other; 0 intersecting pairs is not measured here: tests/test_examples.py and
-tests/test_examples_implicit.py count them):
+other):
 
     Nucleus                         largest skirt speed 0.458 m/s (frame 3)
     implicit, keep (the default)    0.941 m/s (frame 16; hem vertices in single frames: 0.5-0.94
@@ -42,6 +43,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from implicit_newton import solver_data  # noqa: E402
 
 from lokigraph.api import compile_file  # noqa: E402
+from lokigraph.behaviors.collision.intersect import intersect_meshes  # noqa: E402
 from lokigraph.behaviors.solvers.implicit import solver as S  # noqa: E402
 from lokigraph.run import Simulation  # noqa: E402
 
@@ -63,16 +65,25 @@ def build(mode):
 
 
 def speeds(mode, frames):
-    """Per frame: (largest skirt speed, its vertex, Newton iterations, CPU s)."""
+    """Per frame: (largest skirt speed, its vertex, Newton iterations, CPU s, skirt-body
+    intersecting pairs + skirt self-intersecting pairs)."""
     sim, c = build(mode)
-    sl = c.scene.element("skirt").vertex_slice
+    sk, body = c.scene.element("skirt"), c.scene.element("body")
+    sl = sk.vertex_slice
     out = []
     for _ in range(frames):
         t0 = time.process_time()
         st = sim.step_frame()
         cpu = time.process_time() - t0
+        q = sim.state.particle_q
         s = np.linalg.norm(sim.state.particle_qd[sl], axis=1)
-        out.append((float(s.max()), int(s.argmax()), int(st.get("newton_iterations", 0)), cpu))
+        skirt = (q[sl], sk.geometry.triangles)
+        n_self = int(intersect_meshes([skirt], touching=False)[0])
+        _, pairs = intersect_meshes([skirt, (q[body.vertex_slice], body.geometry.triangles)],
+                                    touching=False)
+        n_pen = int((pairs[:, 0] != pairs[:, 2]).sum())
+        out.append((float(s.max()), int(s.argmax()), int(st.get("newton_iterations", 0)), cpu,
+                    n_pen + n_self))
     return out
 
 
@@ -141,15 +152,17 @@ def main(argv):
     for f in range(frames):
         cells = []
         for n in names:
-            v, i, nw, _ = runs[n][f]
+            v, i, nw, _, _ = runs[n][f]
             cells.append(f"{v:.3f} ({i}, {i // 24}) {nw}")
         print(f"{f + 2:5d} | " + " | ".join(cells))
     for n in names:
         v = np.array([r[0] for r in runs[n]])
         cpu = sum(r[3] for r in runs[n][1:])
+        pairs = max(r[4] for r in runs[n])
         print(f"{n}: largest skirt speed {v.max():.3f} m/s (frame {int(v.argmax()) + 2}), "
               f"frames over 0.458 m/s {int((v > 0.458).sum())}, CPU frames 3-{frames + 1} "
-              f"{cpu:.1f} s")
+              f"{cpu:.1f} s, intersecting pairs (skirt-body + skirt self) at most {pairs} in "
+              f"a frame")
 
 
 if __name__ == "__main__":
