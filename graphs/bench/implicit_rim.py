@@ -16,14 +16,15 @@ other):
 
     Nucleus                         largest skirt speed 0.458 m/s (frame 3)
     implicit, keep (the default)    0.941 m/s (frame 16; hem vertices in single frames: 0.5-0.94
-                                    m/s in frames 3, 7, 9, 11, 12, 15, 16, 20, 27, 34)
+                                    m/s in frames 3, 7, 9, 11, 12, 15, 16, 17, 20, 27, 34)
     implicit, skip                  0.342 m/s
     implicit, skip_collider         0.529 m/s
 
 (the pinned waist ring rides the turning body at 0.289 m/s: the floor of every run after frame
 24). ``--rows 30`` (keep): Newton ends at its cap (20) in all 4 substeps of the calm frame 30;
-the largest normal forces, 11-17 N a row on a 0.05 kg skirt, 1,300-1,800 N summed over the
-edge-edge rows and 330-690 N over the vertex-face rows, sit at y = 0.743-0.75 (the rim); the
+the largest normal forces, 11-17 N a row on a 0.05 kg skirt, sit at y = 0.743-0.75 (the rim);
+summed over the rows up to 1,830 N (edge-edge) and 690 N (vertex-face) at a substep's first two
+Newton iterations, 100-430 N and 50-210 N at iterations 10-20; the
 contact of one skirt vertex there is one vertex-face row and 4-5 edge-edge rows (the skirt's
 vertical edge against each body edge at the rim vertex, closest point that vertex) with the same
 gap, so the penalty there is ~6 times a row's stiffness. Why ``skip`` is not the default: the
