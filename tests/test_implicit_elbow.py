@@ -13,7 +13,7 @@ import pytest
 
 from conftest import EXAMPLES
 from lokigraph.api import compile_file
-from lokigraph.behaviors.collision.intersect import intersect_meshes
+from lokigraph.bench.stress import cloth_body_pairs
 from lokigraph.behaviors.materials.stretch import spring_energy, spring_update_lam
 from lokigraph.run import Simulation
 from test_elbow import ARM, MAPS, PINCH_SPEED_BOUND, SPEED_BOUND
@@ -95,13 +95,8 @@ def _run(tmp_path, compression, frames, overrides=""):
         speed = np.linalg.norm(v[sl.vertex_slice], axis=1)
         out["vmax"].append(speed.max())
         out["vnear"].append(speed[np.linalg.norm(q[sl.vertex_slice], axis=1) < 0.15].max())
-        cloth = (q[sl.vertex_slice], sl.geometry.triangles)
-        out["self"].append(intersect_meshes([cloth], touching=False)[0])
-        pen = 0
-        for e in arm:
-            _, pairs = intersect_meshes([cloth, (q[e.vertex_slice], e.geometry.triangles)],
-                                        touching=False)
-            pen += int((pairs[:, 0] != pairs[:, 2]).sum())
+        pen, n_self = cloth_body_pairs(q, sl, arm)
+        out["self"].append(n_self)
         out["pen"].append(pen)
     # the hard stretch rows' energy at the end (the implicit solver's penalty, the rows'
     # multipliers and this substep's compression compliances)

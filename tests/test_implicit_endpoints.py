@@ -10,7 +10,7 @@ import pytest
 
 from conftest import EXAMPLES, write_scene
 from lokigraph.api import compile_file
-from lokigraph.behaviors.collision.intersect import intersect_meshes
+from lokigraph.bench.stress import cloth_body_pairs
 from lokigraph.behaviors.solvers.implicit.contact import (ENDPOINTS, extend_live, lag_rows,
                                                           lag_rows_live)
 from lokigraph.run import Simulation
@@ -97,11 +97,7 @@ def _skirt_vmax(tmp_path, mode, frames):
         sim.step_frame()
         q = sim.state.particle_q
         out.append(float(np.linalg.norm(sim.state.particle_qd[sl], axis=1).max()))
-        skirt = (q[sl], sk.geometry.triangles)
-        n = int(intersect_meshes([skirt], touching=False)[0])
-        _, pp = intersect_meshes([skirt, (q[body.vertex_slice], body.geometry.triangles)],
-                                 touching=False)
-        pairs.append(n + int((pp[:, 0] != pp[:, 2]).sum()))
+        pairs.append(sum(cloth_body_pairs(q, sk, [body])))
     return np.array(out), np.array(pairs)
 
 

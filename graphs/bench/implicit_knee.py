@@ -93,7 +93,7 @@ from pathlib import Path
 import numpy as np
 
 from lokigraph.api import compile_file
-from lokigraph.behaviors.collision.intersect import intersect_meshes
+from lokigraph.bench.stress import cloth_body_pairs
 from lokigraph.run import Simulation
 
 EX = Path(__file__).resolve().parents[1] / "examples"
@@ -154,13 +154,8 @@ def run(name, frames=None, overrides=None, tmp=None, verbose=False, scale=1.0):
         cpu += time.process_time() - t0
         q, v = sim.state.particle_q, sim.state.particle_qd
         out["finite"] &= bool(np.isfinite(q).all() and np.isfinite(v).all())
-        cmesh = (q[cl.vertex_slice], cl.geometry.triangles)
-        out["self"].append(intersect_meshes([cmesh], touching=False)[0])
-        pen = 0
-        for e in els:
-            _, pairs = intersect_meshes([cmesh, (q[e.vertex_slice], e.geometry.triangles)],
-                                        touching=False)
-            pen += int((pairs[:, 0] != pairs[:, 2]).sum())
+        pen, n_self = cloth_body_pairs(q, cl, els)
+        out["self"].append(n_self)
         out["pen"].append(pen)
         speed = np.linalg.norm(v[cl.vertex_slice], axis=1)
         out["vmax"].append(float(speed.max()))

@@ -44,7 +44,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from implicit_newton import solver_data  # noqa: E402
 
 from lokigraph.api import compile_file  # noqa: E402
-from lokigraph.behaviors.collision.intersect import intersect_meshes  # noqa: E402
+from lokigraph.bench.stress import cloth_body_pairs  # noqa: E402
 from lokigraph.behaviors.solvers.implicit import solver as S  # noqa: E402
 from lokigraph.run import Simulation  # noqa: E402
 
@@ -78,11 +78,7 @@ def speeds(mode, frames):
         cpu = time.process_time() - t0
         q = sim.state.particle_q
         s = np.linalg.norm(sim.state.particle_qd[sl], axis=1)
-        skirt = (q[sl], sk.geometry.triangles)
-        n_self = int(intersect_meshes([skirt], touching=False)[0])
-        _, pairs = intersect_meshes([skirt, (q[body.vertex_slice], body.geometry.triangles)],
-                                    touching=False)
-        n_pen = int((pairs[:, 0] != pairs[:, 2]).sum())
+        n_pen, n_self = cloth_body_pairs(q, sk, [body])
         out.append((float(s.max()), int(s.argmax()), int(st.get("newton_iterations", 0)), cpu,
                     n_pen + n_self))
     return out

@@ -266,6 +266,18 @@ def tangle_counts(compiled, q: np.ndarray) -> tuple[int, int]:
     return int(pairs), int(inside.sum())
 
 
+def cloth_body_pairs(q: np.ndarray, cloth, bodies) -> tuple[int, int]:
+    """Intersecting triangle pairs of the element ``cloth`` at positions ``q``: (pairs with
+    each element of ``bodies``, summed; the cloth's own self-intersecting pairs)."""
+    cm = (q[cloth.vertex_slice], cloth.geometry.triangles)
+    pen = 0
+    for e in bodies:
+        _, pairs = intersect_meshes([cm, (q[e.vertex_slice], e.geometry.triangles)],
+                                    touching=False)
+        pen += int((pairs[:, 0] != pairs[:, 2]).sum())
+    return pen, int(intersect_meshes([cm], touching=False)[0])
+
+
 def _at(compiled, frame: int, vertex: int) -> str:
     name, local = compiled.model.locate(vertex)
     return f"frame {frame}, element {name!r}, vertex {local}"
