@@ -718,7 +718,10 @@ class _ImplicitData:
     elim_inv: np.ndarray | None = None
     elim_rhs: np.ndarray | None = None
     all_on: np.ndarray | None = None  # True per vertex (violated_rows: hold)
-    tri_vertex: np.ndarray | None = None  # bool per vertex: of a triangle mesh
+    #: ``edge_endpoint_rows`` per vertex for the lag kernels (int8): its mode at the vertices
+    #: of elements with triangles, 0 at the others (curves: their edges have no faces); the
+    #: empty ``NO_ENDPOINTS`` with 'keep'
+    endpoints: np.ndarray = field(default_factory=lambda: NO_ENDPOINTS)
     #: compliant_shape_stiffness: the compliant edges (m, 2), their mean goal-spring mass
     #: (K h^2) and their (m, 2, 2) block map
     shape_edges: np.ndarray | None = None
@@ -761,11 +764,12 @@ class ImplicitSolver(Behavior):
         dc = m.particle_compliant & m.particle_kinematic & ~compliant
         d.carry = np.flatnonzero(dc) if dc.any() else None
         d.all_on = np.ones(m.particle_count, dtype=np.bool_)
-        # vertices of triangle meshes (``edge_endpoint_rows``: a curve's edges have no faces)
-        d.tri_vertex = np.zeros(m.particle_count, dtype=np.bool_)
-        for e in ctx.scene.elements:
-            if e.geometry is not None and e.vertex_count and len(e.geometry.triangles):
-                d.tri_vertex[e.vertex_slice] = True
+        mode = ENDPOINTS[self.params.edge_endpoint_rows]
+        if mode:
+            d.endpoints = np.zeros(m.particle_count, dtype=np.int8)
+            for e in ctx.scene.elements:
+                if e.geometry is not None and e.vertex_count and len(e.geometry.triangles):
+                    d.endpoints[e.vertex_slice] = mode
         if compliant.any():
             d.comp_idx = np.flatnonzero(compliant)
             tris = [np.asarray(e.geometry.triangles, dtype=np.int64) + e.vertex_offset
@@ -1198,7 +1202,7 @@ class ImplicitSolver(Behavior):
         h = ctx.dt
         m = ctx.model
         h2k = self.params.contact_stiffness / (h * h)
-        ep = self._endpoints(ctx, d)
+        ep = d.endpoints
         act, dl, top, dgap = 0, 0.0, 0.0, 0.0
         for rows, nrm, tgt, mu, coef, kr, lam, lam_prev, is_vf, mark, sel, ns in d.rows["sets"]:
             if live and on_segment and self.params.contact_reach == 0.0:
@@ -1233,19 +1237,6 @@ class ImplicitSolver(Behavior):
                 hot[sel[st[6][sel] > 0.0]] = 1
         return act, dl, top, dgap
 
-    def _endpoints(self, ctx, d):
-        """``edge_endpoint_rows`` per vertex for the lag kernels (int8, built once): its mode
-        at the vertices of elements with triangles, 0 at the others (curves: their edges have
-        no faces); the empty ``NO_ENDPOINTS`` with 'keep'."""
-        mode = ENDPOINTS[self.params.edge_endpoint_rows]
-        if mode == 0:
-            return NO_ENDPOINTS
-        ep = d.rows.get("endpoints")
-        if ep is None or len(ep) != ctx.model.particle_count:
-            ep = np.where(d.tri_vertex, mode, 0).astype(np.int8)
-            d.rows["endpoints"] = ep
-        return ep
-
     def _extend_live(self, ctx, d, xb, x, moved=None):
         """Before a line search from x toward xb: the rows live somewhere on the segment join
         the live rows, lagged at x (``extend_live``). ``moved`` (bool per vertex): xb differs
@@ -1256,7 +1247,7 @@ class ImplicitSolver(Behavior):
         for rows, nrm, tgt, mu, coef, kr, lam, _lp, is_vf, mark, sel, ns in d.rows["sets"]:
             ns[0] = extend_live(xb, x, d.cur_fixed, ctx.model.particle_mass, h2k, rows, nrm,
                                 tgt, is_vf, coef, kr, lam, mark, sel, mv,
-                                self._endpoints(ctx, d))
+                                d.endpoints)
 
     def _row_residuals(self, ctx, d, x, xt):
         """The contact rows' complementarity residuals at the Newton solution x into the
