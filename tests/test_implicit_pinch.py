@@ -1,7 +1,7 @@
 """Impossible collisions with the implicit solver (issue #11): graphs/examples/pinch.yaml with
 ``solver: implicit``, checked as tests/test_pinch.py checks the Nucleus run. With
 ``compliant_kinematics: energy`` the compliant centre of the lid is an unknown of the Newton
-solve; held at its animation in the solve (``dirichlet``, the default) the cloth is pinched to
+solve (the default); held at its animation in the solve (``dirichlet``) the cloth is pinched to
 zero gap between two Dirichlet surfaces: 0.32 m/s, and thrown out of the pinch (1.74 m/s at
 frame 27) with ``hard_multipliers: always``.
 Scenes and figures: graphs/bench/implicit_knee.py."""
@@ -70,7 +70,8 @@ def test_implicit_pinch_dirichlet_multipliers(tmp_path, rule):
     the default) 'always' stays at 0.61 m/s over these 30 frames.
     Zero intersections in every frame with both."""
     extra = ", hard_limit: 0" if rule == "always" else ""
-    r = _pinch_implicit(tmp_path, overrides=f"hard_multipliers: {rule}{extra}", frames=30)
+    r = _pinch_implicit(tmp_path, overrides=f"compliant_kinematics: dirichlet, hard_multipliers: "
+                        f"{rule}{extra}", frames=30)
     vmax = r["vmax"][3:].max()
     print(f"implicit pinch, dirichlet, hard_multipliers {rule}: vmax {vmax:.3f} m/s")
     assert r["finite"]

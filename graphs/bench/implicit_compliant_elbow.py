@@ -10,8 +10,8 @@ substep.
     ... [--nucleus]
 
 The first argument is compliant_shape_stiffness (compliant_kinematics: energy, compliant_depth
-0.01 unless given); ``--dirichlet`` runs the implicit defaults instead (compliant kinematic
-vertices Dirichlet in the solve), ``--nucleus`` the scene as it is (Nucleus, for comparison);
+0.01 unless given); ``--dirichlet`` runs compliant_kinematics: dirichlet instead (compliant
+kinematic vertices Dirichlet in the solve; the implicit default before stop 36), ``--nucleus`` the scene as it is (Nucleus, for comparison);
 other ``k=v`` become implicit_solver overrides; ``--compression`` sets
 stretch.implicit_compression. ``--substeps F0 F1``: per substep of frames F0..F1 (1-based
 labels as printed) the near-joint maximum of the Newton solution's speed (x_newton - x^n) / h
@@ -27,7 +27,7 @@ with every change of the pipeline: chaotic), frames 5-61 (near-joint maximum, fr
 0.73 m/s, largest sleeve speed, CPU s of the 60 frames on the shared 2-core machine), 0
 intersecting pairs (sleeve-arm and sleeve self) in every frame of each:
 
-    --dirichlet (the implicit defaults)                      1.071 (5), 12, 1.071, 47
+    --dirichlet (the defaults then)                          1.071 (5), 12, 1.071, 47
     --dirichlet --compression near_contacts                  1.069 (32), 8, 1.157, 51
     0 (compliant)                                            1.300 (44), 13, 1.300, 52
     0 --compression near_contacts                            1.050 (6), 11, 1.312, 85
@@ -101,7 +101,7 @@ def scene(args):
     args[:] = [a for a in args if a not in ("--nucleus", "--dirichlet")]
     comp = _opt(args, "--compression")
     s = args.pop(0) if args and "=" not in args[0] else "0"
-    ov = {} if (dirichlet or nucleus) else {
+    ov = {} if nucleus else {"compliant_kinematics": "dirichlet"} if dirichlet else {
         "compliant_kinematics": "energy", "compliant_depth": "0.01",
         "compliant_shape_stiffness": s}
     ov.update(dict(a.split("=", 1) for a in args))

@@ -16,6 +16,10 @@ self pairs, largest cloth speed [m/s], Newton iterations per substep (mean, larg
 halvings, the projection pass's largest move [m] and the contact rows' normal complementarity
 residual at the Newton solution (``max_complementarity`` [mm]).
 
+Since stop 36 the implicit solver's defaults put compliant kinematic vertices in the solve
+(compliant_kinematics: energy, compliant_depth 0.01); the figures below for the defaults were
+measured with compliant_kinematics: dirichlet (add compliant_kinematics=dirichlet to rerun them).
+
 Measured with the default hard_multipliers: converged / hard_multipliers=always (the update
 after every substep, before; bitwise the same results as before it existed), largest cloth
 speed, CPU per frame from frame 4 on the shared 2-core machine (NUMBA_NUM_THREADS=1), Newton

@@ -87,16 +87,18 @@ cloth-on-sphere-mesh test (1 substep): max strain 1.7 % with none, 0.9 % with ho
 36 % with hold + reach 0.002 m and no rest.
 
 Compliant kinematic vertices (``Kinematic.stiffness`` > 0, Loki's receding surfaces): with
-``compliant_kinematics: dirichlet`` (the default) they sit at their animated pose in the Newton
+``compliant_kinematics: dirichlet`` they sit at their animated pose in the Newton
 solve like the other kinematic vertices and only the projection pass below moves them; with
-``energy`` they are unknowns of the solve whose inertia term, of mass K h^2 (the Nucleus
-solver's inverse mass) around the animated pose, is the goal spring K/2 |x - x_anim|^2, pushed
-by the contact rows' penalty and not by their friction (``compliant_tangential``: the same spring
-in every direction, or hard across the surface normal). ``energy`` holds the flat pinches
+``energy`` (the default since stop 36) they are unknowns of the solve whose inertia term, of
+mass K h^2 (the Nucleus solver's inverse mass) around the animated pose, is the goal spring
+K/2 |x - x_anim|^2, pushed by the contact rows' penalty and not by their friction
+(``compliant_tangential``: the same spring in every direction, or hard across the surface
+normal). ``energy`` holds the flat pinches
 (pinch, sleeve_pinch) within the Nucleus speed bounds, but not the knee or the elbow, whose
 compliant surfaces recede far (Field descriptions) unless ``compliant_depth`` caps each
-vertex's recession (opt-in; with it the knee holds, 0 intersecting pairs, and all but the
-elbow's near-joint speed meet the Nucleus bounds; ``compliant_shape_stiffness``, opt-in, couples
+vertex's recession (0.01 m by default; with it the knee holds, 0 intersecting pairs, and all
+but the elbow's near-joint speed meet the Nucleus bounds, which ``dirichlet`` fails on every
+scene but the elbow's overall bound; ``compliant_shape_stiffness``, opt-in, couples
 neighbouring compliant unknowns by a Laplacian energy on their recession: the knee calmer, the
 sleeves faster, Field description). The compliant unknowns carry no momentum
 and, without ``compliant_shape_stiffness``, no energy stencil (the supplement's "new vertices"
@@ -514,7 +516,7 @@ class ImplicitParams(Params):
         "0.14 m/s, but with them on 0.0005 makes the 48x48 stress projectile end with 22 "
         "crossing pairs (module docstring).")
     compliant_kinematics: Literal["dirichlet", "energy"] = Field(
-        "dirichlet", description="Compliant kinematic vertices (Kinematic.stiffness > 0): "
+        "energy", description="Compliant kinematic vertices (Kinematic.stiffness > 0): "
         "'dirichlet' holds them at the animated pose in the Newton solve (only the projection "
         "pass after it moves them); 'energy' makes them unknowns of the solve with the goal "
         "spring K/2 |x - x_anim|^2 (an inertia term of mass K h^2 around the animated pose, as "
@@ -528,8 +530,9 @@ class ImplicitParams(Params):
         "figures are with hard_multipliers: always; with converged (the default): pinch 0.32 / "
         "0.267 m/s, sleeve_pinch 0.43 / 0.21 m/s, sleeve_elbow 1.08 / 4.93 m/s (25 frames), "
         "trouser_knee 2.19 / 1.72 m/s but with energy 10 trouser-leg intersecting pairs at "
-        "frame 24: hence dirichlet by default. Remeasured since (graphs/bench/implicit_knee.py, "
-        "whole runs, dirichlet / energy): pinch 0.355 / 0.001 m/s from frame 5 (bound 0.3), "
+        "frame 24: hence dirichlet by default then. Remeasured since "
+        "(graphs/bench/implicit_knee.py, whole runs, dirichlet / energy): pinch 0.355 / 0.001 "
+        "m/s from frame 5 (bound 0.3), "
         "sleeve_pinch 0.458 / 0.140 m/s (bound 0.3), 0 intersecting pairs in each; but "
         "trouser_knee 1.912 m/s in frames 37-48 (bound 1.65) / 2.45 m/s by frame 18 and "
         "intersecting pairs from frame 24 (54, then thousands), sleeve_elbow 0.897 m/s near the "
@@ -539,7 +542,9 @@ class ImplicitParams(Params):
         "16, 97 at 23, recession up to 6.4 cm by frame 22 and 14 cm at 23. With the painted "
         "stiffness 10x (2e5) no explosion, but the knee still intersects from frame 28 (40 "
         "pairs) and the elbow keeps 0.888 m/s near the joint (0 pairs, 1.284 m/s overall, "
-        "bound 1.47).")
+        "bound 1.47). 'energy' with compliant_depth 0.01 is the default since stop 36: "
+        "with it pinch, sleeve_pinch and the whole knee hold their Nucleus bounds, which "
+        "dirichlet fails (Field compliant_depth has the figures).")
     compliant_solve: Literal["block", "cg", "cg_identity"] = Field(
         "cg", description="With compliant_kinematics: energy, how the linear solve of a "
         "Newton iteration treats the compliant unknowns (Loki supplement section 1: momentum-free "
@@ -571,8 +576,9 @@ class ImplicitParams(Params):
         "inward, and by frame 23 the compliant surface had moved up to 1.15 m / receded 15 "
         "cm: neither holds the knee.")
     compliant_depth: float = Field(
-        0.0, ge=0.0, description="With compliant_kinematics: energy, the largest recession "
-        "of a compliant vertex from its animated pose [m] (0: none): beyond it the goal spring "
+        0.01, ge=0.0, description="With compliant_kinematics: energy, the largest recession "
+        "of a compliant vertex from its animated pose [m] (0: none; 0.01 by default since stop "
+        "36, a soft cap at character scale): beyond it the goal spring "
         "stiffens by compliant_depth_stiffness (the energy k/2 (|x - x_anim| - depth)^2, exact "
         "Hessian; diagonal blocks only). The goal springs alone (~7 N/m per vertex at the knee) "
         "let single vertices recede independently by centimetres and the compliant surface "
@@ -580,7 +586,8 @@ class ImplicitParams(Params):
         "(energy, depth 0.01, whole runs; 0 intersecting pairs in every frame of all four): "
         "trouser_knee 1.573 m/s in frames 37-48 (bound 1.65), 1.720 m/s overall (bound 2.2); "
         "pinch 0.001 m/s, sleeve_pinch 0.201 m/s from frame 5 (bound 0.3); sleeve_elbow 1.141 "
-        "m/s (bound 1.47) but 0.928 m/s within 0.15 m of the joint (bound 0.73; 1.097 at depth "
+        "m/s (bound 1.47) but 0.928 m/s within 0.15 m of the joint (bound 0.73; remeasured at "
+        "stop 36: 1.300 m/s there and overall, frame 43; dirichlet 1.071; 1.097 at depth "
         "0.005, 1.084 at 0.02, 0.837 with compliant_depth_stiffness 100, but then the knee "
         "intersects from frame 26; 1.052 with compliant_tangential: hard). Without it the knee "
         "intersects from frame 24. The cap is soft: the knee's recession still reaches 41 mm "
