@@ -3,6 +3,7 @@ Newton iteration and CPU time per frame with ``preconditioner: none`` (plain CG)
 ``block_jacobi`` (the default) and ``amg``, interleaved frame by frame on the same scenes.
 
     python graphs/bench/implicit_precond.py [--frames 6] [--scenes drape_64 cloth_sphere_64 ...]
+        [--preconditioners none block_jacobi amg amg_reuse direct]
 
 Scenes are names under graphs/bench/ or graphs/examples/, run with ``solver: implicit`` at
 their own substeps. Per scene and preconditioner: Newton iterations, CG iterations, CG per
@@ -57,20 +58,23 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--scenes", nargs="+", default=["drape_64", "cloth_sphere_32"])
+    ap.add_argument("--preconditioners", nargs="+", default=list(PRECONDITIONERS),
+                    choices=("none", "block_jacobi", "amg", "amg_reuse", "direct"))
     a = ap.parse_args(argv)
+    pcs = a.preconditioners
     print(f"{'scene':18} {'preconditioner':14} {'Newton':>7} {'CG':>8} {'CG/Newton':>10} "
           f"{'max CG':>7} {'ms/frame CPU':>13} {'max res':>9}")
     for name in a.scenes:
         path = _find(name)
-        runs = {p: _sim(path, p) for p in PRECONDITIONERS}
+        runs = {p: _sim(path, p) for p in pcs}
         acc = {p: {"newton": 0.0, "cg": 0.0, "cg_max": 0.0, "cpu": 0.0, "res": 0.0}
-               for p in PRECONDITIONERS}
+               for p in pcs}
         for p, sim in runs.items():  # JIT warm-up frame, not counted
             sim.step_frame()
         for _ in range(a.frames):
             for p, sim in runs.items():
                 step_counted(sim, acc[p])
-        for p in PRECONDITIONERS:
+        for p in pcs:
             r = acc[p]
             print(f"{name:18} {p:14} {r['newton']:7.0f} {r['cg']:8.0f} "
                   f"{r['cg'] / max(r['newton'], 1):10.1f} {r['cg_max']:7.0f} "

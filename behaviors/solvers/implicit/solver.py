@@ -196,7 +196,7 @@ from .contact import (_ALL_MOVED, ENDPOINTS, NO_ENDPOINTS, contact_energy_al, ex
                       start_targets_on, update_contact_multipliers)
 from .energy import EnergyOptions, build_pattern, gather_blocks, gather_map, limit_energy
 from .compliant import compliant_edges, shape_energy
-from .linear import (AggregationReuse, BlockJacobi, Identity, SmoothedAggregation,
+from .linear import (AggregationReuse, BlockJacobi, Direct, Identity, SmoothedAggregation,
                      invert_blocks, lowrank_matvec)
 
 #: the rank-one Hessian terms' per-vertex diagonal blocks go into the Newton matrix (so every
@@ -310,7 +310,7 @@ class ImplicitParams(Params):
         "energy-norm error of the step at 0.1 / 0.03 22.0 / 5.2 mm, at 0.01 7 iterations and "
         "26,867 CG iterations against 28,120: graphs/bench/implicit_speedups.py); 'contacts' "
         "leaves it bitwise the fixed tolerance.")
-    preconditioner: Literal["block_jacobi", "amg", "amg_reuse", "none"] = Field(
+    preconditioner: Literal["block_jacobi", "amg", "amg_reuse", "none", "direct"] = Field(
         "block_jacobi", description="CG preconditioner: inverse 3x3 diagonal blocks, pyamg "
         "smoothed aggregation (one V-cycle, rebuilt per Newton iteration), 'amg_reuse' "
         "(aggregation multigrid whose aggregation is built once and reused, its coarse "
@@ -326,7 +326,16 @@ class ImplicitParams(Params):
         "amg_reuse): drape_64 2,056 / 1,238, cloth_sphere_32 966 / 306, pinch 87 / 95, elastica "
         "and catenary 2 / 7 (one CG iteration: the coarsest level solves them). Opt-in: the "
         "strain moves both ways with the linear solve (Newton stops at its cap at impact; an "
-        "earlier run of the additive cycle reached 6.08 % at 128x128, the V-cycle 5.13-6.06 %).")
+        "earlier run of the additive cycle reached 6.08 % at 128x128, the V-cycle 5.13-6.06 %). "
+        "'direct' factorises the Newton matrix (QDLDL, AMD ordering kept within a substep; "
+        "linear.Direct) and solves it exactly, for measuring what an exact Newton step gains: "
+        "graphs/bench/implicit_precond.py --preconditioners block_jacobi amg_reuse direct (6 "
+        "frames, ms/frame CPU, stop 36): elastica 5 / 13 / 12, catenary 4 / 13 / 7, drape_64 "
+        "3,444 / 3,737 / 7,972, cloth_sphere_32 541 / 894 / 443, pinch 91 / 221 / 201, the same "
+        "Newton counts. On sleeve_elbow (graphs/bench/implicit_knee.py, 60 frames) Newton "
+        "still stops at its cap in every substep with it: near-joint speed 1.092 against "
+        "1.300 m/s with block_jacobi, 95.7 against 47.8 s CPU: the inexact linear solve is not "
+        "what keeps Newton from converging there.")
     amg_cycle: Literal["additive", "v"] = Field(
         "additive", description="preconditioner: amg_reuse: 'additive' the finest level's "
         "block-Jacobi plus the coarse levels' V-cycle on the restricted residual (one matrix "
@@ -885,6 +894,7 @@ class ImplicitSolver(Behavior):
             raise InputError("compliant_solve: cg_identity needs preconditioner: block_jacobi")
         P = self.params
         d.precond = (Identity(n) if P.preconditioner == "none" else
+                     Direct(n) if P.preconditioner == "direct" else
                      SmoothedAggregation(n) if P.preconditioner == "amg" else
                      AggregationReuse(n, P.amg_smooth, P.amg_rebuild_growth,
                                       cycle=P.amg_cycle) if P.preconditioner == "amg_reuse"
