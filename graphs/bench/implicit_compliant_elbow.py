@@ -65,6 +65,19 @@ is 0.1-1.2 J (frames 12-13; 0.012-0.03 J after 100 more iterations), and the vel
 change by 0.1 m/s (median), up to 0.9 m/s, with more iterations (frame 12: 1,800 contact rows
 active at the first iterate, normal forces up to 38 N, line-search alpha 1/128-1/2, 100-600
 rows entering and leaving the active set per iteration: graphs/bench/implicit_newton.py).
+
+Stop 36, at the defaults then (compliant unknowns, depth 0.01; graphs/bench/implicit_knee.py
+sleeve_elbow k=v, 60 frames, 1 thread): Newton stops at its cap of 20 in every substep of
+every run below, so none of these is what keeps it from converging. Near-joint speed (bound
+0.73), largest overall (bound 1.47), CPU s:
+
+    defaults                                   1.300, 1.300, 47.8
+    preconditioner=direct (exact linear solve) 1.092, 1.375, 95.7
+    stretch.implicit_compression=soft (tried,  1.050, 1.312, 88.7
+        every hard edge soft in compression; not kept)
+    contact_stiffness=1e3 / 1e2 (default 1e4)  1.303, 1.303, 48.3 / 1.217, 1.637, 54.4
+    friction_velocity=1e-3 / 1e-2 (1e-5)       1.202, 1.202, 47.2 / 0.976, 1.152, 46.4
+    compliant_kinematics=dirichlet             1.071, 1.239, 47.3
 """
 
 import shutil
