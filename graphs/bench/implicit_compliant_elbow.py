@@ -11,7 +11,8 @@ substep.
 
 The first argument is compliant_shape_stiffness (compliant_kinematics: energy, compliant_depth
 0.01 unless given); ``--dirichlet`` runs compliant_kinematics: dirichlet instead (compliant
-kinematic vertices Dirichlet in the solve; the implicit default before stop 36), ``--nucleus`` the scene as it is (Nucleus, for comparison);
+kinematic vertices Dirichlet in the solve; the implicit default before stop 36), ``--nucleus``
+the scene as it is (Nucleus, for comparison);
 other ``k=v`` become implicit_solver overrides; ``--compression`` sets
 stretch.implicit_compression. ``--substeps F0 F1``: per substep of frames F0..F1 (1-based
 labels as printed) the near-joint maximum of the Newton solution's speed (x_newton - x^n) / h
