@@ -7,12 +7,12 @@ With dirichlet the implicit solver keeps the trouser out of the leg (0 intersect
 every frame) and, with ``hard_multipliers: converged`` (the default), within the Nucleus speed
 bound through the bend: measured 1.88 m/s in frames 8-25 (stop 36; 1.60 when measured first)
 against 2.2 m/s with the hard rows' strain limit in the solve (``hard_limit`` 0.02, the
-default), 2.19 m/s without (at frame 25, the end of the bend); over the whole knee it
-reaches 2.352 m/s (frame 53, stop 35). Newton still stops at its 20-iteration cap in every substep (the jammed, inextensible trouser: the
-incremental potential flattens within 1e-3 while the steps stay ~0.05 m/s). With
-``hard_multipliers: always`` (the update of every substep, before) the stretch multipliers wind
-up to ~1,700 N by frame 17 and the trouser reaches 4.95 m/s. Figures and the other settings
-tried: graphs/bench/implicit_knee.py and the solver's Field descriptions.
+default), 2.19 m/s without (at frame 25, the end of the bend); over the whole knee it reaches
+2.352 m/s (frame 53, stop 35). Newton still stops at its 20-iteration cap in every substep (the
+jammed, inextensible trouser: the incremental potential flattens within 1e-3 while the steps
+stay ~0.05 m/s). With ``hard_multipliers: always`` (the update of every substep, before) the
+stretch multipliers wind up to ~1,700 N by frame 17 and the trouser reaches 4.95 m/s. Figures
+and the other settings tried: graphs/bench/implicit_knee.py and the solver's Field descriptions.
 """
 
 import pytest
